@@ -1,0 +1,1 @@
+"""formic_trainer."""

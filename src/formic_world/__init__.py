@@ -1,0 +1,24 @@
+"""ForMIC world: the simulation core (no ROS), scenarios, rendering and a PettingZoo wrapper."""
+
+from .config import RewardConfig, WorldConfig
+from .scenario import Scenario, ScenarioError, generate_scenario
+from .world import StepResult, World, make_world
+
+__all__ = [
+    "RewardConfig",
+    "Scenario",
+    "ScenarioError",
+    "StepResult",
+    "World",
+    "WorldConfig",
+    "generate_scenario",
+    "make_world",
+    "parallel_env",
+]
+
+
+def parallel_env(**kwargs):
+    """PettingZoo ParallelEnv over the core; keyword arguments are WorldConfig fields."""
+    from .pettingzoo_env import parallel_env as _parallel_env
+
+    return _parallel_env(**kwargs)

@@ -1,0 +1,154 @@
+"""Every parameter of the world in one typed object (SPEC §1-4 defaults).
+
+Nothing about the world's rules is a constant buried in code: generation, queues, loads,
+pheromones, observation and rewards all read their numbers from :class:`WorldConfig`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+from dataclasses import dataclass, field
+from fractions import Fraction
+from typing import Any
+
+PHEROMONE_VARIANTS = ("standard", "flat", "noisy", "random")
+CAPACITY_MODES = ("infinite", "finite")
+
+
+@dataclass(frozen=True)
+class RewardConfig:
+    """Per-step rewards (paper Table "reward structure"; SPEC §4)."""
+
+    move: float = -0.05  # every step spent moving or trying to move
+    queue_wait: float = -0.05  # every step waiting or being served in a queue
+    collect: float = 10.0  # leaving a resource full
+    deposit: float = 10.0  # leaving a cache empty
+    join_right: float = 0.0  # entering the right queue
+    join_wrong: float = -1.0  # trying to enter the wrong type of queue
+    join_nothing: float = -0.05  # JOIN with no queue in reach: a wasted step, like a failed move
+
+
+@dataclass(frozen=True)
+class WorldConfig:
+    """World parameters. ``height``/``width`` may differ; every experiment uses squares."""
+
+    height: int = 128
+    width: int = 128
+    n_agents: int = 32
+    queue_len: int = 5
+    obstacle_density: float = 0.0
+    capacity: str = "infinite"  # "infinite" | "finite"
+    capacity_min: int = 4  # finite resources hold a uniform integer in [min, max] units
+    capacity_max: int = 8
+    gather_rate: float = 0.1
+    dropoff_rate: float = 0.5
+    episode_steps: int = 512
+    # Pheromones (SPEC §2)
+    alpha: float = 0.97  # per-deposit decay of an agent's intensity
+    beta: float = 0.99  # per-step evaporation of the map
+    pheromone_variant: str = "standard"
+    deposit_strength: float = 1.0  # I_c of the curriculum
+    highway_intensity: float = 0.0  # I_h of the curriculum (training only)
+    wipeouts: int = 0
+    wipeout_steps: int = 100
+    # Observation (SPEC §3)
+    view_size: int = 11
+    pheromones_visible: bool = True  # False: channel 7 reads 0 (the paper's ablation)
+    # Training-only start: a random number in [0, min(this, N)] agents begin in cache queues loaded
+    training_start: bool = False
+    training_start_max_queued: int = 20
+    rewards: RewardConfig = field(default_factory=RewardConfig)
+
+    def __post_init__(self) -> None:
+        if self.height < 12 or self.width < 12:
+            raise ValueError(f"world must be at least 12x12, got {self.height}x{self.width}")
+        if self.n_agents < 1:
+            raise ValueError("n_agents must be >= 1")
+        if self.capacity not in CAPACITY_MODES:
+            raise ValueError(f"capacity must be one of {CAPACITY_MODES}, got {self.capacity!r}")
+        if self.pheromone_variant not in PHEROMONE_VARIANTS:
+            raise ValueError(
+                f"pheromone_variant must be one of {PHEROMONE_VARIANTS}, got {self.pheromone_variant!r}"
+            )
+        if self.view_size % 2 != 1 or self.view_size < 3:
+            raise ValueError(f"view_size must be odd and >= 3, got {self.view_size}")
+        if not 0.0 <= self.obstacle_density < 0.5:
+            raise ValueError(f"obstacle_density must be in [0, 0.5), got {self.obstacle_density}")
+        if self.wipeouts * self.wipeout_steps > self.episode_steps:
+            raise ValueError("wipeouts do not fit in the episode")
+        if not 1 <= self.capacity_min <= self.capacity_max:
+            raise ValueError("need 1 <= capacity_min <= capacity_max")
+        for name in ("gather_rate", "dropoff_rate"):
+            rate = getattr(self, name)
+            if not 0 < rate <= 1:
+                raise ValueError(f"{name} must be in (0, 1], got {rate}")
+        self.load_denominator  # validates that rates are exact fractions
+
+    @property
+    def load_denominator(self) -> int:
+        """Loads are integers in units of 1/D so a load takes exactly 1/rate steps."""
+        denominators = []
+        for rate in (self.gather_rate, self.dropoff_rate):
+            frac = Fraction(rate).limit_denominator(10_000)
+            if abs(float(frac) - rate) > 1e-12 or frac.denominator > 10_000:
+                raise ValueError(f"rate {rate} is not a simple fraction")
+            denominators.append(frac.denominator)
+        lcm = 1
+        for d in denominators:
+            lcm = lcm * d // _gcd(lcm, d)
+        return lcm
+
+    @property
+    def gather_ticks(self) -> int:
+        return int(Fraction(self.gather_rate).limit_denominator(10_000) * self.load_denominator)
+
+    @property
+    def dropoff_ticks(self) -> int:
+        return int(Fraction(self.dropoff_rate).limit_denominator(10_000) * self.load_denominator)
+
+    @property
+    def effective_alpha(self) -> float:
+        """The ``flat`` variant sets alpha = beta so a trail carries no gradient."""
+        return self.beta if self.pheromone_variant == "flat" else self.alpha
+
+    def replace(self, **changes: Any) -> "WorldConfig":
+        if "rewards" in changes and isinstance(changes["rewards"], dict):
+            changes["rewards"] = RewardConfig(**changes["rewards"])
+        return dataclasses.replace(self, **changes)
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> "WorldConfig":
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = set(data) - known
+        if unknown:
+            raise ValueError(f"unknown world configuration keys: {sorted(unknown)}")
+        data = dict(data)
+        if "rewards" in data:
+            reward_keys = {f.name for f in dataclasses.fields(RewardConfig)}
+            bad = set(data["rewards"]) - reward_keys
+            if bad:
+                raise ValueError(f"unknown reward keys: {sorted(bad)}")
+            data["rewards"] = RewardConfig(**data["rewards"])
+        return cls(**data)
+
+    def digest(self) -> str:
+        """Short stable hash of the configuration, recorded with runs."""
+        text = json.dumps(self.to_dict(), sort_keys=True)
+        return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def _gcd(a: int, b: int) -> int:
+    while b:
+        a, b = b, a % b
+    return a
+
+
+def resource_count_range(height: int, width: int) -> tuple[int, int]:
+    """Inclusive range of the resource count (SPEC §1): m = H*W*10/2304."""
+    m = height * width * 10 / 2304
+    return max(10, int(m // 2)), max(10, int(3 * m // 2))
