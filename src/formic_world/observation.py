@@ -85,8 +85,12 @@ class ObservationBuilder:
         qlen = w.config.queue_len
         count, head = w.queue_count, w.queue_head
         spot = np.where(count == 0, 0, head + count)
-        remaining = np.where(w.queue_is_cache, -1, w.resource_remaining[np.maximum(w.queue_resource, 0)])
-        capacity = np.where(w.queue_is_cache, -1, w.resource_capacity[np.maximum(w.queue_resource, 0)])
+        # -1 (infinite) for caches; resource queues read their resource (a world may have none)
+        res_q = ~w.queue_is_cache
+        remaining = np.full(len(count), -1, dtype=np.int64)
+        capacity = np.full(len(count), -1, dtype=np.int64)
+        remaining[res_q] = w.resource_remaining[w.queue_resource[res_q]]
+        capacity[res_q] = w.resource_capacity[w.queue_resource[res_q]]
         accepts = (spot < qlen) & ((remaining < 0) | (remaining > count * w.load_full))
         q = np.flatnonzero(accepts)
         entry = w.queue_cells[q, spot[q]]

@@ -1,0 +1,90 @@
+"""Checkpoints: written atomically, read with ``weights_only=True`` (never unpickle code).
+
+A checkpoint is a plain dict of tensors and primitives: the network configuration travels
+with the weights, so loading needs no guessing.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from .network import ForMICNet, NetworkConfig
+
+CHECKPOINT_FORMAT = "formic-checkpoint"
+CHECKPOINT_VERSION = 1
+
+
+class CheckpointError(ValueError):
+    """A model file that cannot be used, with the reason."""
+
+
+def save_checkpoint(path: str | os.PathLike, net: ForMICNet, **extra: Any) -> None:
+    """Write to a temporary file and rename: a crash never leaves a half-written checkpoint."""
+    payload = {
+        "format": CHECKPOINT_FORMAT,
+        "version": CHECKPOINT_VERSION,
+        "network": net.config.to_dict(),
+        "state_dict": net.state_dict(),
+        **extra,
+    }
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as handle:
+            torch.save(payload, handle)
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def read_checkpoint(source: str | os.PathLike | bytes) -> dict[str, Any]:
+    """Load and validate a checkpoint (a path, or its bytes as sent over ROS)."""
+    name = "<bytes>" if isinstance(source, bytes) else str(source)
+    try:
+        handle = io.BytesIO(source) if isinstance(source, bytes) else open(source, "rb")
+        with handle:
+            payload = torch.load(handle, map_location="cpu", weights_only=True)
+    except FileNotFoundError:
+        raise
+    except Exception as exc:  # torch raises many types for corrupt or unsafe files
+        raise CheckpointError(f"{name}: not a readable ForMIC checkpoint ({exc.__class__.__name__}: {exc})") from exc
+    if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
+        raise CheckpointError(f"{name}: not a ForMIC checkpoint")
+    if payload.get("version") != CHECKPOINT_VERSION:
+        raise CheckpointError(f"{name}: checkpoint version {payload.get('version')} is not supported")
+    return payload
+
+
+def load_network(source: str | os.PathLike | bytes) -> tuple[ForMICNet, dict[str, Any]]:
+    payload = read_checkpoint(source)
+    try:
+        net = ForMICNet(NetworkConfig.from_dict(payload["network"]))
+        net.load_state_dict(payload["state_dict"])
+    except (KeyError, RuntimeError, ValueError, TypeError) as exc:
+        raise CheckpointError(f"checkpoint does not match its network configuration: {exc}") from exc
+    net.eval()
+    return net, payload
+
+
+def checkpoint_id(path: str | os.PathLike) -> str:
+    """Short content hash that names a model in recordings and model cards."""
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:12]
+
+
+def state_dict_bytes(net: ForMICNet) -> bytes:
+    """Weights as bytes for the ROS weights topic (loaded with weights_only=True)."""
+    buffer = io.BytesIO()
+    torch.save({"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION,
+                "network": net.config.to_dict(), "state_dict": net.state_dict()}, buffer)
+    return buffer.getvalue()

@@ -1,0 +1,72 @@
+"""The learned ForMIC policy: one network, batched over every agent it drives, with an
+LSTM state per agent id."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .checkpoint import load_network
+from .network import ForMICNet
+from .policy import AgentBatch, Policy
+
+
+def extra_inputs(batch: AgentBatch) -> np.ndarray:
+    """Odometry extension: offset to the nest centre (/ world size) and own load."""
+    height, width = batch.world_shape
+    to_nest_r = (height // 2 - 0.5 - batch.positions[:, 0]) / height
+    to_nest_c = (width // 2 - 0.5 - batch.positions[:, 1]) / width
+    return np.stack([to_nest_r, to_nest_c, batch.loads], axis=1).astype(np.float32)
+
+
+class LearnedPolicy(Policy):
+    name = "formic"
+
+    def __init__(self, net: ForMICNet, greedy: bool = False, seed: int = 0, checkpoint: str = ""):
+        self.net = net.eval()
+        self.greedy = greedy
+        self.checkpoint = checkpoint
+        self.generator = torch.Generator().manual_seed(seed)
+        self.hidden = torch.zeros(1, 0, net.config.rnn)
+        self.cell = torch.zeros(1, 0, net.config.rnn)
+
+    @classmethod
+    def from_checkpoint(cls, path: str | Path, greedy: bool = False) -> "LearnedPolicy":
+        net, _ = load_network(path)
+        return cls(net, greedy=greedy, checkpoint=str(path))
+
+    def load_state_dict(self, state_dict: dict) -> None:
+        """Swap weights (the trainer broadcasts new ones between episodes)."""
+        self.net.load_state_dict(state_dict)
+
+    def reset(self, n_agents: int, seed: int) -> None:
+        self.generator.manual_seed(int(seed) * 7919 + 17)
+        self.hidden = torch.zeros(1, n_agents, self.net.config.rnn)
+        self.cell = torch.zeros(1, n_agents, self.net.config.rnn)
+
+    def forget(self, agent_ids: np.ndarray) -> None:
+        self.hidden[:, agent_ids] = 0.0
+        self.cell[:, agent_ids] = 0.0
+
+    def _ensure_capacity(self, max_id: int) -> None:
+        if max_id >= self.hidden.shape[1]:
+            grow = max_id + 1 - self.hidden.shape[1]
+            pad = torch.zeros(1, grow, self.net.config.rnn)
+            self.hidden = torch.cat([self.hidden, pad], dim=1)
+            self.cell = torch.cat([self.cell, pad.clone()], dim=1)
+
+    @torch.no_grad()
+    def act(self, batch: AgentBatch) -> np.ndarray:
+        ids = torch.as_tensor(batch.agent_ids, dtype=torch.long)
+        self._ensure_capacity(int(ids.max()))
+        obs = torch.from_numpy(batch.observations).unsqueeze(0)
+        extra = torch.from_numpy(extra_inputs(batch)).unsqueeze(0)
+        state = (self.hidden[:, ids], self.cell[:, ids])
+        logits, _, (h, c) = self.net(obs, state, extra)
+        self.hidden[:, ids], self.cell[:, ids] = h, c
+        logits = logits[0]
+        if self.greedy:
+            return logits.argmax(dim=1).numpy().astype(np.int64)
+        return torch.multinomial(torch.softmax(logits, dim=1), 1, generator=self.generator)[:, 0].numpy().astype(np.int64)

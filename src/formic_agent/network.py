@@ -1,0 +1,107 @@
+"""The ForMIC actor-critic network (SPEC §5), batched over many agents.
+
+conv3x3 x3 (c1) -> maxpool -> conv3x3 x3 (c2) -> maxpool -> conv to 1x1 (fc) -> ReLU = f;
+f -> FC -> ReLU -> FC, + f, ReLU -> LSTM (rnn) -> policy logits (5) and value (1).
+The valid-action predictor is sigmoid(logits): no extra layer.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import torch
+from torch import nn
+
+N_ACTIONS = 5
+
+
+@dataclass(frozen=True)
+class NetworkConfig:
+    conv1: int = 128
+    conv2: int = 256
+    fc: int = 512
+    rnn: int = 512
+    view_size: int = 11
+    channels: int = 8
+    # Opt-in extension (never in the paper configuration): odometry to the nest and own load.
+    nest_input: bool = False
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "NetworkConfig":
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = set(data) - known
+        if unknown:
+            raise ValueError(f"unknown network configuration keys: {sorted(unknown)}")
+        return cls(**data)
+
+
+NETWORK_PRESETS = {
+    "paper": NetworkConfig(),
+    "cpu": NetworkConfig(conv1=16, conv2=32, fc=64, rnn=64),
+    "cpu-nest": NetworkConfig(conv1=16, conv2=32, fc=64, rnn=64, nest_input=True),
+}
+N_EXTRA_INPUTS = 3  # nest row offset, nest col offset (both / world size), load
+
+
+def _conv_block(c_in: int, c_out: int) -> list[nn.Module]:
+    layers: list[nn.Module] = []
+    for i in range(3):
+        layers += [nn.Conv2d(c_in if i == 0 else c_out, c_out, 3, padding=1), nn.ReLU()]
+    return layers
+
+
+class ForMICNet(nn.Module):
+    def __init__(self, config: NetworkConfig):
+        super().__init__()
+        self.config = config
+        spatial = config.view_size // 2 // 2  # after two 2x2 max-pools (11 -> 5 -> 2)
+        if spatial < 1:
+            raise ValueError(f"view size {config.view_size} is too small for two poolings")
+        self.encoder = nn.Sequential(
+            *_conv_block(config.channels, config.conv1),
+            nn.MaxPool2d(2),
+            *_conv_block(config.conv1, config.conv2),
+            nn.MaxPool2d(2),
+            nn.Conv2d(config.conv2, config.fc, spatial),  # to 1x1
+            nn.Flatten(),
+            nn.ReLU(),
+        )
+        extra = N_EXTRA_INPUTS if config.nest_input else 0
+        self.fc1 = nn.Linear(config.fc + extra, config.fc)
+        self.fc2 = nn.Linear(config.fc, config.fc)
+        self.lstm = nn.LSTM(config.fc, config.rnn)
+        self.policy_head = nn.Linear(config.rnn, N_ACTIONS)
+        self.value_head = nn.Linear(config.rnn, 1)
+        nn.init.orthogonal_(self.policy_head.weight, 0.01)
+        nn.init.zeros_(self.policy_head.bias)
+
+    def initial_state(self, batch: int) -> tuple[torch.Tensor, torch.Tensor]:
+        zeros = torch.zeros(1, batch, self.config.rnn)
+        return zeros, zeros.clone()
+
+    def features(self, obs: torch.Tensor, extra: torch.Tensor | None) -> torch.Tensor:
+        """Per-frame features before the LSTM; obs (B, 8, V, V)."""
+        f = self.encoder(obs)
+        x = f if extra is None or not self.config.nest_input else torch.cat([f, extra], dim=1)
+        return torch.relu(self.fc2(torch.relu(self.fc1(x))) + f)
+
+    def forward(
+        self,
+        obs: torch.Tensor,
+        state: tuple[torch.Tensor, torch.Tensor],
+        extra: torch.Tensor | None = None,
+    ) -> tuple[torch.Tensor, torch.Tensor, tuple[torch.Tensor, torch.Tensor]]:
+        """obs (T, B, 8, V, V) -> logits (T, B, 5), values (T, B), new state."""
+        steps, batch = obs.shape[:2]
+        flat_extra = None if extra is None else extra.reshape(steps * batch, -1)
+        x = self.features(obs.reshape(steps * batch, *obs.shape[2:]), flat_extra)
+        out, new_state = self.lstm(x.reshape(steps, batch, -1), state)
+        return self.policy_head(out), self.value_head(out).squeeze(-1), new_state
+
+
+def count_parameters(net: nn.Module) -> int:
+    return sum(p.numel() for p in net.parameters())

@@ -1,0 +1,77 @@
+"""The one interface every decision maker implements: a batch of agents in, actions out.
+
+``formic sim``, the evaluation harness and the ROS agent host all drive policies through
+:class:`Policy`, so a learned network, a baseline rule and a user's own code are
+interchangeable. Policies keep whatever per-agent memory they need, keyed by agent id, and
+forget it in :meth:`Policy.reset` (new episode) or :meth:`Policy.forget` (an agent swapped in).
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass
+class AgentBatch:
+    """What a group of agents senses at one step (rows indexed like ``agent_ids``)."""
+
+    step: int
+    agent_ids: np.ndarray  # (B,) int
+    observations: np.ndarray  # (B, 8, V, V) float32, SPEC §3
+    action_mask: np.ndarray  # (B, 5) bool, environment validity
+    positions: np.ndarray  # (B, 2) int (row, col): odometry, used by rule-based baselines
+    loads: np.ndarray  # (B,) float in [0, 1]
+    queued: np.ndarray  # (B,) bool: the agent waits in a queue and its action is ignored
+    world_shape: tuple[int, int]  # (H, W): the nest is at its centre
+
+    def __len__(self) -> int:
+        return len(self.agent_ids)
+
+    @classmethod
+    def from_world(cls, world, agent_ids: np.ndarray | None = None, observations=None, action_mask=None) -> "AgentBatch":
+        """Everything a world gives its agents (optionally a subset), for in-process runs."""
+        ids = np.arange(world.config.n_agents) if agent_ids is None else np.asarray(agent_ids)
+        obs = world.observer.observe() if observations is None else observations
+        mask = world.action_mask() if action_mask is None else action_mask
+        return cls(
+            step=world.t,
+            agent_ids=ids,
+            observations=obs[ids],
+            action_mask=mask[ids],
+            positions=world.pos[ids].copy(),
+            loads=world.loads[ids],
+            queued=world.queued[ids],
+            world_shape=world.grid.shape,
+        )
+
+
+class Policy(ABC):
+    """Observation batch in, action batch out."""
+
+    name: str = "policy"
+
+    def reset(self, n_agents: int, seed: int) -> None:
+        """Start of an episode: forget all memory; seed any randomness."""
+
+    def forget(self, agent_ids: np.ndarray) -> None:
+        """Forget the memory of these agents (one was swapped in mid-episode)."""
+
+    @abstractmethod
+    def act(self, batch: AgentBatch) -> np.ndarray:
+        """Actions 0-4 for every row of the batch, shape (B,) int64."""
+
+
+class CentralPolicy(ABC):
+    """A policy that reads the full world state (the centralized planner)."""
+
+    name: str = "central"
+
+    def reset(self, n_agents: int, seed: int) -> None:
+        """Start of an episode."""
+
+    @abstractmethod
+    def act_world(self, world) -> np.ndarray:
+        """Actions for all agents of ``world``, shape (N,) int64."""

@@ -1,0 +1,457 @@
+"""ForMIC training, top to bottom in one file (CleanRL style).
+
+The paper's algorithm (SPEC §6): an actor-critic over whole 512-step episodes with
+bootstrapped discounted returns, loss = L_pi (with entropy bonus) + 0.5 L_V + 0.5 L_valid,
+queued steps masked out of every term, gradients of all learning agents summed into one
+global network. Several "meta-agent" worlds step together; only ``learning_agents`` agents
+per world produce gradients, the rest run the current policy. Action filtering (sample,
+replace an invalid action by a random valid one, mask that step out of the value loss), the
+pheromone-highway curriculum and random world sizes/obstacles per reset are all switches.
+
+The ``cpu`` preset keeps the algorithm's losses and techniques but makes it learn in hours on
+two cores: a small network, PPO-style clipped updates on 128-step chunks with GAE, Adam at a
+larger learning rate, advantage normalisation, reward scaling, every agent learning, and a
+curriculum scaled to the shorter run. Each change is a field below and is logged with the run.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from formic_agent.checkpoint import load_network, read_checkpoint, save_checkpoint
+from formic_agent.network import NETWORK_PRESETS, ForMICNet, NetworkConfig
+from formic_world import World, WorldConfig, generate_scenario
+from formic_world.pheromones import curriculum_intensities
+
+
+@dataclass
+class TrainConfig:
+    preset: str = "paper"
+    network: str = "paper"  # a NETWORK_PRESETS name
+    seed: int = 0
+    # Meta-agent environments: team size, learning agents (-1 = all), world side range.
+    teams: tuple[int, ...] = (16, 24, 32, 48)
+    learning_agents: int = 8
+    world_sizes: tuple[tuple[int, int], ...] = ((20, 96), (20, 96), (40, 96), (64, 128))
+    obstacle_range: tuple[float, float] = (0.0, 0.05)
+    episode_steps: int = 512
+    view_size: int = 11
+    # Algorithm
+    rollout_steps: int = 512  # steps per update (512 = whole episodes, as the paper)
+    epochs: int = 1
+    minibatches: int = 1
+    clip: float = 0.0  # PPO ratio clip; 0 = plain actor-critic (the paper)
+    gamma: float = 0.95
+    gae_lambda: float = 1.0  # 1.0 = n-step bootstrapped returns (the paper)
+    value_coef: float = 0.5
+    entropy_coef: float = 0.01
+    valid_coef: float = 0.5
+    optimizer: str = "nadam"
+    lr: float = 5e-6
+    max_grad_norm: float = 10.0
+    loss_reduction: str = "sum"  # "sum": gradients of all learning agents are summed (paper)
+    normalize_advantages: bool = False
+    reward_scale: float = 1.0
+    # Techniques (the paper's ablation switches)
+    action_filter: str = "replace"  # "replace" (paper) | "mask" (mask invalid logits) | "none"
+    pheromones: bool = True  # False: train (and test) without pheromones
+    curriculum: bool = True
+    curriculum_start: int = 5000
+    curriculum_end: int = 10000
+    training_start: bool = True  # some agents start in cache queues loaded (reference behaviour)
+    # Run
+    total_episodes: int = 24000  # environment episodes (summed over meta-agents)
+    checkpoint_every: int = 5  # updates
+    threads: int = 1
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+PRESETS = {
+    "paper": TrainConfig(),
+    "cpu": TrainConfig(
+        preset="cpu",
+        network="cpu",
+        learning_agents=-1,
+        rollout_steps=128,
+        epochs=3,
+        minibatches=4,
+        clip=0.2,
+        gae_lambda=0.95,
+        optimizer="adam",
+        lr=3e-4,
+        max_grad_norm=0.5,
+        loss_reduction="mean",
+        normalize_advantages=True,
+        reward_scale=0.1,
+        action_filter="mask",
+        curriculum_start=150,
+        curriculum_end=600,
+        total_episodes=4000,
+    ),
+}
+
+
+def make_config(preset: str = "paper", **overrides) -> TrainConfig:
+    if preset not in PRESETS:
+        raise ValueError(f"unknown preset {preset!r}; choose from {sorted(PRESETS)}")
+    return dataclasses.replace(PRESETS[preset], **overrides)
+
+
+# ----------------------------------------------------------------------------- environments
+class MetaAgents:
+    """All training worlds, stepped together so one forward pass serves every agent."""
+
+    def __init__(self, cfg: TrainConfig):
+        self.cfg = cfg
+        self.rng = np.random.default_rng([cfg.seed, 3])
+        self.worlds: list[World] = []
+        self.offsets = np.cumsum([0, *cfg.teams])
+        self.n_agents = int(self.offsets[-1])
+        learners = [
+            np.arange(o, o + (t if cfg.learning_agents < 0 else min(cfg.learning_agents, t)))
+            for o, t in zip(self.offsets[:-1], cfg.teams)
+        ]
+        self.learners = np.concatenate(learners)
+
+    def reset(self, episode: int) -> None:
+        """New scenarios for every world; curriculum intensities from the global episode."""
+        cfg = self.cfg
+        if cfg.curriculum and cfg.pheromones:
+            highway, deposit = curriculum_intensities(episode, cfg.curriculum_start, cfg.curriculum_end)
+        else:
+            highway, deposit = 0.0, 1.0
+        self.highway, self.deposit = highway, deposit
+        self.worlds = []
+        for team, (lo, hi) in zip(cfg.teams, cfg.world_sizes):
+            side = 2 * int(self.rng.integers(lo // 2, hi // 2 + 1))
+            config = WorldConfig(
+                height=side, width=side, n_agents=team,
+                obstacle_density=float(self.rng.uniform(*cfg.obstacle_range)),
+                episode_steps=cfg.episode_steps, view_size=cfg.view_size,
+                highway_intensity=highway, deposit_strength=deposit,
+                pheromones_visible=cfg.pheromones, training_start=cfg.training_start,
+            )
+            self.worlds.append(World(generate_scenario(config, int(self.rng.integers(2**31)))))
+
+    def observe(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(obs, extra, env-valid mask, training mask, queued) for every agent of every world."""
+        obs, extra, valid, train, queued = [], [], [], [], []
+        for w in self.worlds:
+            obs.append(w.observer.observe())
+            v = w.action_mask()
+            valid.append(v)
+            train.append(w.training_action_mask(v))
+            queued.append(w.queued)
+            h, wd = w.grid.shape
+            extra.append(np.stack([(h // 2 - 0.5 - w.pos[:, 0]) / h, (wd // 2 - 0.5 - w.pos[:, 1]) / wd, w.loads], 1))
+        return (np.concatenate(obs), np.concatenate(extra).astype(np.float32), np.concatenate(valid),
+                np.concatenate(train), np.concatenate(queued))
+
+    def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        rewards, food = [], []
+        for w, lo, hi in zip(self.worlds, self.offsets[:-1], self.offsets[1:]):
+            result = w.step(actions[lo:hi])
+            rewards.append(result.rewards)
+            food.append(result.food)
+        return np.concatenate(rewards), np.array(food)
+
+
+# ----------------------------------------------------------------------------- losses
+def policy_losses(
+    net: ForMICNet, cfg: TrainConfig, batch: dict[str, torch.Tensor]
+) -> dict[str, torch.Tensor]:
+    """All loss terms over a batch of agent sequences (T, B, ...) from their initial state."""
+    logits, values, _ = net(batch["obs"], (batch["h0"], batch["c0"]), batch["extra"])
+    if cfg.action_filter == "mask":
+        logits_for_pi = logits.masked_fill(~batch["train_mask"], -1e9)
+    else:
+        logits_for_pi = logits
+    log_probs = torch.log_softmax(logits_for_pi, dim=-1)
+    logp = log_probs.gather(-1, batch["actions"].unsqueeze(-1)).squeeze(-1)
+    entropy = -(log_probs.exp() * log_probs).sum(-1)
+    loss_mask = batch["loss_mask"]
+    value_mask = loss_mask * batch["value_mask"]
+    adv = batch["advantages"]
+    if cfg.clip > 0:
+        ratio = torch.exp(logp - batch["logp"])
+        pg = -torch.min(ratio * adv, torch.clamp(ratio, 1 - cfg.clip, 1 + cfg.clip) * adv)
+    else:
+        pg = -logp * adv
+    value_err = 0.5 * (values - batch["returns"]) ** 2
+    valid_bce = F.binary_cross_entropy_with_logits(
+        logits, batch["train_mask"].float(), reduction="none"
+    ).sum(-1)
+
+    def reduce(x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        total = (x * mask).sum()
+        return total if cfg.loss_reduction == "sum" else total / mask.sum().clamp(min=1.0)
+
+    terms = {
+        "policy": reduce(pg, loss_mask),
+        "value": reduce(value_err, value_mask),
+        "entropy": reduce(entropy, loss_mask),
+        "valid": reduce(valid_bce, loss_mask),
+    }
+    terms["loss"] = (
+        terms["policy"] - cfg.entropy_coef * terms["entropy"]
+        + cfg.value_coef * terms["value"] + cfg.valid_coef * terms["valid"]
+    )
+    with torch.no_grad():
+        predicted = torch.sigmoid(logits) > 0.5
+        agree = (predicted == batch["train_mask"]).all(-1).float()
+        terms["valid_accuracy"] = (agree * loss_mask).sum() / loss_mask.sum().clamp(min=1.0)
+        if cfg.clip > 0:
+            terms["clip_fraction"] = (((ratio - 1).abs() > cfg.clip).float() * loss_mask).sum() / loss_mask.sum().clamp(min=1.0)
+    return terms
+
+
+def advantages_and_returns(cfg: TrainConfig, rewards, values, next_value) -> tuple[np.ndarray, np.ndarray]:
+    """GAE over a chunk (T, B); lambda=1 gives the paper's bootstrapped discounted returns.
+    An episode is truncated by time, so the last step always bootstraps from next_value."""
+    steps = rewards.shape[0]
+    adv = np.zeros_like(rewards)
+    last = np.zeros(rewards.shape[1], dtype=np.float32)
+    for t in reversed(range(steps)):
+        nxt = next_value if t == steps - 1 else values[t + 1]
+        delta = rewards[t] + cfg.gamma * nxt - values[t]
+        last = delta + cfg.gamma * cfg.gae_lambda * last
+        adv[t] = last
+    return adv, adv + values
+
+
+def update(net: ForMICNet, optimizer: torch.optim.Optimizer, cfg: TrainConfig, data: dict[str, np.ndarray],
+           rng: np.random.Generator) -> dict[str, float]:
+    """One update from a rollout chunk: the same function serves the in-process trainer and
+    the ROS trainer node. ``data`` arrays are time-major (T, B, ...)."""
+    adv, returns = advantages_and_returns(cfg, data["rewards"], data["values"], data["next_value"])
+    tensors = {
+        "obs": torch.from_numpy(data["obs"]),
+        "extra": torch.from_numpy(data["extra"]),
+        "actions": torch.from_numpy(data["actions"]).long(),
+        "logp": torch.from_numpy(data["logp"]),
+        "train_mask": torch.from_numpy(data["train_mask"]),
+        "loss_mask": torch.from_numpy(data["loss_mask"]).float(),
+        "value_mask": torch.from_numpy(data["value_mask"]).float(),
+        "returns": torch.from_numpy(returns.astype(np.float32)),
+        "h0": torch.from_numpy(data["h0"]),
+        "c0": torch.from_numpy(data["c0"]),
+    }
+    adv_t = torch.from_numpy(adv.astype(np.float32))
+    if cfg.normalize_advantages:
+        m = tensors["loss_mask"]
+        mean = (adv_t * m).sum() / m.sum().clamp(min=1)
+        std = torch.sqrt((((adv_t - mean) ** 2) * m).sum() / m.sum().clamp(min=1)) + 1e-8
+        adv_t = (adv_t - mean) / std
+    tensors["advantages"] = adv_t
+    n_seq = tensors["obs"].shape[1]
+    stats: dict[str, list[float]] = {}
+    for _ in range(cfg.epochs):
+        order = rng.permutation(n_seq)
+        for chunk in np.array_split(order, cfg.minibatches):
+            idx = torch.from_numpy(chunk)
+            batch = {k: v[:, idx] for k, v in tensors.items()}
+            terms = policy_losses(net, cfg, batch)
+            optimizer.zero_grad()
+            terms["loss"].backward()
+            grad_norm = torch.nn.utils.clip_grad_norm_(net.parameters(), cfg.max_grad_norm)
+            optimizer.step()
+            terms["grad_norm"] = grad_norm
+            for k, v in terms.items():
+                stats.setdefault(k, []).append(float(v))
+    return {k: float(np.mean(v)) for k, v in stats.items()}
+
+
+def make_optimizer(net: ForMICNet, cfg: TrainConfig) -> torch.optim.Optimizer:
+    if cfg.optimizer == "nadam":
+        return torch.optim.NAdam(net.parameters(), lr=cfg.lr)
+    if cfg.optimizer == "adam":
+        return torch.optim.Adam(net.parameters(), lr=cfg.lr, eps=1e-5)
+    raise ValueError(f"unknown optimizer {cfg.optimizer!r}")
+
+
+# ----------------------------------------------------------------------------- rollouts
+@dataclass
+class Rollout:
+    """A chunk of experience from the learning agents, time-major (T, B, ...)."""
+
+    arrays: dict[str, np.ndarray] = field(default_factory=dict)
+
+
+def select_actions(cfg: TrainConfig, logits: torch.Tensor, valid: np.ndarray, train_mask: np.ndarray,
+                   generator: torch.Generator, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Sample actions under the training filter. Returns (actions, log-probs, value_mask)."""
+    if cfg.action_filter == "mask":
+        masked = logits.masked_fill(~torch.from_numpy(train_mask), -1e9)
+        probs = torch.softmax(masked, -1)
+        actions = torch.multinomial(probs, 1, generator=generator)[:, 0]
+        logp = torch.log_softmax(masked, -1).gather(-1, actions[:, None])[:, 0]
+        return actions.numpy(), logp.numpy(), np.ones(len(actions), dtype=np.float32)
+    probs = torch.softmax(logits, -1)
+    actions = torch.multinomial(probs, 1, generator=generator)[:, 0].numpy().copy()
+    value_mask = np.ones(len(actions), dtype=np.float32)
+    if cfg.action_filter == "replace":
+        rows = np.arange(len(actions))
+        invalid = ~train_mask[rows, actions] & train_mask.any(1)
+        for i in np.flatnonzero(invalid):
+            actions[i] = rng.choice(np.flatnonzero(train_mask[i]))
+        value_mask[invalid] = 0.0
+    logp = torch.log_softmax(logits, -1).gather(-1, torch.from_numpy(actions)[:, None])[:, 0]
+    return actions, logp.numpy(), value_mask
+
+
+class Trainer:
+    def __init__(self, cfg: TrainConfig, run_dir: Path, resume: bool = True, log=print):
+        self.cfg = cfg
+        self.run_dir = Path(run_dir)
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        self.log = log
+        torch.set_num_threads(cfg.threads)
+        torch.manual_seed(cfg.seed)
+        self.net = ForMICNet(dataclasses.replace(NETWORK_PRESETS[cfg.network], view_size=cfg.view_size))
+        self.net = self.net.to(memory_format=torch.channels_last)
+        self.optimizer = make_optimizer(self.net, cfg)
+        self.episode = 0  # global environment episodes finished
+        self.updates = 0
+        self.env_steps = 0
+        self.seconds = 0.0
+        self.best_food = -math.inf
+        self.generator = torch.Generator().manual_seed(cfg.seed)
+        self.rng = np.random.default_rng([cfg.seed, 5])
+        latest = self.run_dir / "latest.pt"
+        if resume and latest.exists():
+            self._resume(latest)
+        (self.run_dir / "config.json").write_text(json.dumps(cfg.to_dict(), indent=2))
+        self.envs = MetaAgents(cfg)
+        self.envs.rng = np.random.default_rng([cfg.seed, 3, self.episode])
+        from torch.utils.tensorboard import SummaryWriter
+
+        self.writer = SummaryWriter(str(self.run_dir / "tb"))
+        self.writer.add_text("config", json.dumps(cfg.to_dict(), indent=2))
+
+    def _resume(self, path: Path) -> None:
+        payload = read_checkpoint(path)
+        self.net.load_state_dict(payload["state_dict"])
+        self.optimizer.load_state_dict(payload["optimizer"])
+        progress = payload["progress"]
+        self.episode, self.updates = progress["episode"], progress["updates"]
+        self.env_steps, self.seconds = progress["env_steps"], progress["seconds"]
+        self.best_food = progress.get("best_food", -math.inf)
+        self.generator.manual_seed(self.cfg.seed + self.updates)
+        self.rng = np.random.default_rng([self.cfg.seed, 5, self.updates])
+        self.log(f"resumed from {path}: episode {self.episode}, update {self.updates}")
+
+    def save(self, name: str = "latest.pt") -> None:
+        save_checkpoint(
+            self.run_dir / name, self.net,
+            optimizer=self.optimizer.state_dict(),
+            train_config=self.cfg.to_dict(),
+            progress={"episode": self.episode, "updates": self.updates, "env_steps": self.env_steps,
+                      "seconds": self.seconds, "best_food": self.best_food},
+        )
+
+    def run_episode_set(self) -> dict[str, float]:
+        """Every meta-agent world plays one episode; updates happen every rollout chunk."""
+        cfg, envs, net = self.cfg, self.envs, self.net
+        envs.reset(self.episode)
+        n, learners = envs.n_agents, envs.learners
+        h = torch.zeros(1, n, net.config.rnn)
+        c = torch.zeros(1, n, net.config.rnn)
+        food = np.zeros(len(envs.worlds))
+        stats_acc: dict[str, list[float]] = {}
+        valid_rate = []
+        obs, extra, valid, train_mask, queued = envs.observe()
+        for _chunk_start in range(0, cfg.episode_steps, cfg.rollout_steps):
+            T = min(cfg.rollout_steps, cfg.episode_steps - _chunk_start)
+            buf = {
+                "obs": np.zeros((T, len(learners), *obs.shape[1:]), np.float32),
+                "extra": np.zeros((T, len(learners), 3), np.float32),
+                "actions": np.zeros((T, len(learners)), np.int64),
+                "logp": np.zeros((T, len(learners)), np.float32),
+                "values": np.zeros((T, len(learners)), np.float32),
+                "rewards": np.zeros((T, len(learners)), np.float32),
+                "train_mask": np.zeros((T, len(learners), 5), bool),
+                "loss_mask": np.zeros((T, len(learners)), np.float32),
+                "value_mask": np.zeros((T, len(learners)), np.float32),
+                "h0": h[:, learners].numpy().copy(),
+                "c0": c[:, learners].numpy().copy(),
+            }
+            for t in range(T):
+                with torch.no_grad():
+                    logits, values, (h, c) = net(
+                        torch.from_numpy(obs)[None], (h, c), torch.from_numpy(extra)[None]
+                    )
+                logits, values = logits[0], values[0]
+                actions, logp, value_mask = select_actions(cfg, logits, valid, train_mask, self.generator, self.rng)
+                valid_rate.append(float(valid[np.arange(n), actions][~queued].mean()) if (~queued).any() else 1.0)
+                buf["obs"][t] = obs[learners]
+                buf["extra"][t] = extra[learners]
+                buf["actions"][t] = actions[learners]
+                buf["logp"][t] = logp[learners]
+                buf["values"][t] = values.numpy()[learners]
+                buf["train_mask"][t] = train_mask[learners]
+                buf["loss_mask"][t] = ~queued[learners]
+                buf["value_mask"][t] = value_mask[learners]
+                rewards, step_food = envs.step(actions)
+                food += step_food
+                buf["rewards"][t] = rewards[learners] * cfg.reward_scale
+                obs, extra, valid, train_mask, queued = envs.observe()
+            with torch.no_grad():
+                _, next_values, _ = net(torch.from_numpy(obs)[None], (h, c), torch.from_numpy(extra)[None])
+            buf["next_value"] = next_values[0].numpy()[learners]
+            self.env_steps += T * n
+            stats = update(net, self.optimizer, cfg, buf, self.rng)
+            self.updates += 1
+            for k, v in stats.items():
+                stats_acc.setdefault(k, []).append(v)
+        self.episode += len(envs.worlds)
+        result = {k: float(np.mean(v)) for k, v in stats_acc.items()}
+        result["food_mean"] = float(food.mean())
+        for i, f in enumerate(food):
+            result[f"food_env{i}"] = float(f)
+        result["valid_rate"] = float(np.mean(valid_rate))
+        result["highway_intensity"] = envs.highway
+        result["deposit_strength"] = envs.deposit
+        return result
+
+    def train(self, episodes: int | None = None, minutes: float | None = None) -> None:
+        target = self.cfg.total_episodes if episodes is None else self.episode + episodes
+        deadline = None if minutes is None else time.time() + 60 * minutes
+        while self.episode < target and (deadline is None or time.time() < deadline):
+            t0 = time.time()
+            stats = self.run_episode_set()
+            self.seconds += time.time() - t0
+            for k, v in stats.items():
+                self.writer.add_scalar(f"train/{k}", v, self.episode)
+            self.writer.add_scalar("train/agent_steps_per_s", self.env_steps / max(self.seconds, 1e-9), self.episode)
+            self.writer.flush()
+            sps = self.env_steps / max(self.seconds, 1e-9)
+            per_env = " ".join(f"{stats[f'food_env{i}']:.0f}" for i in range(len(self.cfg.teams)))
+            self.log(
+                f"ep {self.episode:6d} | food {stats['food_mean']:6.1f} "
+                f"({per_env}) | "
+                f"loss {stats['loss']:.3f} pi {stats['policy']:.3f} v {stats['value']:.3f} "
+                f"ent {stats['entropy']:.3f} valid {stats['valid_accuracy']:.3f} act-ok {stats['valid_rate']:.2f} | "
+                f"I_h {stats['highway_intensity']:.2f} | {sps:,.0f} agent-steps/s | {self.seconds / 60:.1f} min"
+            )
+            if self.updates // max(1, self.cfg.episode_steps // self.cfg.rollout_steps) % self.cfg.checkpoint_every == 0:
+                self.save()
+        self.save()
+        self.writer.close()
+
+
+def export_model(checkpoint: Path, out: Path) -> None:
+    """A small shipped model: weights and configuration only (no optimiser state)."""
+    net, payload = load_network(checkpoint)
+    save_checkpoint(out, net, train_config=payload.get("train_config", {}), progress=payload.get("progress", {}))
+
