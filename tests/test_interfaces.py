@@ -46,6 +46,10 @@ SAMPLES = {
         reward=-1.25,
         queued=True,
         done=True,
+        row=-3,
+        col=127,
+        world_height=128,
+        world_width=96,
     ),
     "AgentAction": dict(step=12345, agent_id=7, action=4),
     "ObservationBatch": dict(
@@ -59,6 +63,11 @@ SAMPLES = {
         rewards=array.array("f", [0.0, -0.25, 10.0]),
         queued=bytes([0, 1, 0]),
         done=True,
+        rows=array.array("i", [1, 2, 3]),
+        cols=array.array("i", [4, 5, -6]),
+        world_height=64,
+        world_width=64,
+        train_masks=u8(N * 5, 3),
     ),
     "ActionBatch": dict(
         step=100,

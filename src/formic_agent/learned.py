@@ -10,7 +10,7 @@ import torch
 
 from .checkpoint import load_network
 from .network import ForMICNet
-from .policy import AgentBatch, Policy
+from .policy import AgentBatch, Policy, agent_uniforms, sample_rows
 
 
 def extra_inputs(batch: AgentBatch) -> np.ndarray:
@@ -24,11 +24,11 @@ def extra_inputs(batch: AgentBatch) -> np.ndarray:
 class LearnedPolicy(Policy):
     name = "formic"
 
-    def __init__(self, net: ForMICNet, greedy: bool = False, seed: int = 0, checkpoint: str = ""):
+    def __init__(self, net: ForMICNet, greedy: bool = False, checkpoint: str = ""):
         self.net = net.eval()
         self.greedy = greedy
         self.checkpoint = checkpoint
-        self.generator = torch.Generator().manual_seed(seed)
+        self.seed = 0
         self.hidden = torch.zeros(1, 0, net.config.rnn)
         self.cell = torch.zeros(1, 0, net.config.rnn)
 
@@ -42,7 +42,7 @@ class LearnedPolicy(Policy):
         self.net.load_state_dict(state_dict)
 
     def reset(self, n_agents: int, seed: int) -> None:
-        self.generator.manual_seed(int(seed) * 7919 + 17)
+        self.seed = int(seed)
         self.hidden = torch.zeros(1, n_agents, self.net.config.rnn)
         self.cell = torch.zeros(1, n_agents, self.net.config.rnn)
 
@@ -69,4 +69,5 @@ class LearnedPolicy(Policy):
         logits = logits[0]
         if self.greedy:
             return logits.argmax(dim=1).numpy().astype(np.int64)
-        return torch.multinomial(torch.softmax(logits, dim=1), 1, generator=self.generator)[:, 0].numpy().astype(np.int64)
+        probabilities = torch.softmax(logits.double(), dim=1).numpy()
+        return sample_rows(probabilities, agent_uniforms(self.seed, batch.step, batch.agent_ids, stream=13))

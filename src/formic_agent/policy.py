@@ -48,6 +48,27 @@ class AgentBatch:
         )
 
 
+def agent_uniforms(seed: int, step: int, agent_ids: np.ndarray, stream: int) -> np.ndarray:
+    """One uniform draw per agent, keyed by (seed, step, agent id, stream).
+
+    Sampling from these instead of a generator shared by the batch makes every agent's action
+    independent of how agents are grouped into batches, processes or hosts, so a distributed
+    run reproduces ``formic sim`` exactly.
+    """
+    ids = np.asarray(agent_ids, dtype=np.int64)
+    if len(ids) == 0:
+        return np.zeros(0)
+    draws = np.random.default_rng([int(seed), int(step), int(stream)]).random(int(ids.max()) + 1)
+    return draws[ids]
+
+
+def sample_rows(probabilities: np.ndarray, uniforms: np.ndarray) -> np.ndarray:
+    """Inverse-CDF sampling of one index per row."""
+    cumulative = np.cumsum(probabilities, axis=1)
+    cumulative /= cumulative[:, -1:]
+    return np.minimum((uniforms[:, None] >= cumulative).sum(axis=1), probabilities.shape[1] - 1).astype(np.int64)
+
+
 class Policy(ABC):
     """Observation batch in, action batch out."""
 

@@ -4,22 +4,20 @@ from __future__ import annotations
 
 import numpy as np
 
-from formic_agent.policy import AgentBatch, Policy
+from formic_agent.policy import AgentBatch, Policy, agent_uniforms, sample_rows
 
 
 class RandomPolicy(Policy):
     name = "random"
 
     def __init__(self) -> None:
-        self.rng = np.random.default_rng(0)
+        self.seed = 0
 
     def reset(self, n_agents: int, seed: int) -> None:
-        self.rng = np.random.default_rng([seed, 11])
+        self.seed = seed
 
     def act(self, batch: AgentBatch) -> np.ndarray:
-        mask = batch.action_mask.astype(float)
+        weights = batch.action_mask.astype(np.float64)
         # Agents with no valid action (queued, or boxed in) send NORTH, which is ignored or fails.
-        mask[mask.sum(axis=1) == 0, 0] = 1.0
-        cumulative = np.cumsum(mask / mask.sum(axis=1, keepdims=True), axis=1)
-        draws = self.rng.random(len(batch))[:, None]
-        return np.minimum((draws > cumulative).sum(axis=1), 4).astype(np.int64)
+        weights[weights.sum(axis=1) == 0, 0] = 1.0
+        return sample_rows(weights, agent_uniforms(self.seed, batch.step, batch.agent_ids, stream=11))

@@ -455,3 +455,25 @@ def export_model(checkpoint: Path, out: Path) -> None:
     net, payload = load_network(checkpoint)
     save_checkpoint(out, net, train_config=payload.get("train_config", {}), progress=payload.get("progress", {}))
 
+
+
+def parse_overrides(pairs: tuple[str, ...] | list[str]) -> dict:
+    """``KEY=VALUE`` strings to TrainConfig fields, typed like the field's default."""
+    defaults = TrainConfig()
+    out: dict = {}
+    for pair in pairs:
+        key, sep, text = pair.partition("=")
+        if not sep or not hasattr(defaults, key):
+            raise ValueError(f"bad override {pair!r}: expected FIELD=VALUE with a TrainConfig field")
+        current = getattr(defaults, key)
+        if isinstance(current, bool):
+            if text.lower() not in ("true", "false", "1", "0", "yes", "no"):
+                raise ValueError(f"{key} expects true/false, got {text!r}")
+            out[key] = text.lower() in ("true", "1", "yes")
+        elif isinstance(current, tuple) and key == "teams":
+            out[key] = tuple(int(v) for v in text.split(","))
+        elif isinstance(current, tuple):
+            raise ValueError(f"{key} cannot be set from the command line")
+        else:
+            out[key] = type(current)(text)
+    return out

@@ -2,9 +2,10 @@
 
 from .config import RewardConfig, WorldConfig
 from .scenario import Scenario, ScenarioError, generate_scenario
-from .world import StepResult, World, make_world
+from .world import NO_ACTION, StepResult, World, make_world
 
 __all__ = [
+    "NO_ACTION",
     "RewardConfig",
     "Scenario",
     "ScenarioError",

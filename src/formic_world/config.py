@@ -76,6 +76,8 @@ class WorldConfig:
             raise ValueError(f"view_size must be odd and >= 3, got {self.view_size}")
         if not 0.0 <= self.obstacle_density < 0.5:
             raise ValueError(f"obstacle_density must be in [0, 0.5), got {self.obstacle_density}")
+        if not 0.0 <= self.highway_intensity <= 1.0 or not 0.0 <= self.deposit_strength <= 1.0:
+            raise ValueError("highway_intensity and deposit_strength must be in [0, 1]")
         if self.wipeouts * self.wipeout_steps > self.episode_steps:
             raise ValueError("wipeouts do not fit in the episode")
         if not 1 <= self.capacity_min <= self.capacity_max:

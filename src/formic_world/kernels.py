@@ -98,9 +98,11 @@ def act_agents(
         if queue_of[a] >= 0:
             reward[a] += r_wait
             continue
+        act = actions[a]
+        if act < 0:
+            continue  # no action arrived in time: the agent does nothing (no cost, no deposit)
         row, col = pos[a, 0], pos[a, 1]
         carrying = load[a] > 0
-        act = actions[a]
         if act < 4:
             reward[a] += r_move
             nr, nc = row + _DR[act], col + _DC[act]

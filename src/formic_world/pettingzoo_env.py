@@ -14,9 +14,8 @@ governs the dynamics (it must match this env's grid size, team size and view siz
 Episodes never terminate; every agent is truncated at ``max_cycles`` steps (default the
 configuration's ``episode_steps``) and the agent list then empties.
 
-Agents missing from the actions dict should do nothing, but the core has no "stay" action, so
-each gets the action most certain to change nothing (see :func:`idle_actions`); it is charged
-the reward the core gives that action (usually the -0.05 of a failed move).
+Agents missing from the actions dict do nothing that step (the core's ``NO_ACTION``: no move,
+no deposit, reward 0), exactly like a late agent node in the ROS system.
 """
 
 from __future__ import annotations
@@ -28,11 +27,11 @@ from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
 from .config import WorldConfig
-from .geometry import DIRECTION_DELTAS, FREE, JOIN, N_ACTIONS, NORTH
+from .geometry import N_ACTIONS
 from .observation import N_CHANNELS
 from .render import render_frame
 from .scenario import Scenario, generate_scenario
-from .world import StepResult, World
+from .world import NO_ACTION, StepResult, World
 
 _SHAPE_FIELDS = ("height", "width", "n_agents", "view_size")
 
@@ -49,7 +48,9 @@ def parallel_env(
 
 
 class FormicParallelEnv(ParallelEnv):
-    metadata = {"name": "formic_v0", "render_modes": ["rgb_array"], "render_fps": 20, "is_parallelizable": True}
+    metadata = {
+        "name": "formic_v0", "render_modes": ["rgb_array"], "render_fps": 20, "is_parallelizable": True,
+    }
 
     def __init__(self, config: WorldConfig, render_mode: str | None = None, max_cycles: int | None = None):
         if render_mode not in (None, "rgb_array"):
@@ -110,9 +111,7 @@ class FormicParallelEnv(ParallelEnv):
             raise ValueError(f"actions for agents that are not live: {sorted(unknown)}")
         world = self.world
         ids = np.array([int(name.rsplit("_", 1)[1]) for name in actions], dtype=np.int64)
-        given = np.zeros(world.config.n_agents, dtype=bool)
-        given[ids] = True
-        chosen = idle_actions(world, np.flatnonzero(~given))
+        chosen = np.full(world.config.n_agents, NO_ACTION, dtype=np.int64)
         chosen[ids] = [int(a) for a in actions.values()]
         result = world.step(chosen)
         truncated = world.done or world.t >= self.max_cycles
@@ -134,7 +133,10 @@ class FormicParallelEnv(ParallelEnv):
         mask = result.action_mask.astype(np.int8)
         loads, queued, pos = world.loads, world.queued, world.pos
         return {
-            name: {"action_mask": mask[i], "load": float(loads[i]), "queued": bool(queued[i]), "position": pos[i].copy()}
+            name: {
+                "action_mask": mask[i], "load": float(loads[i]), "queued": bool(queued[i]),
+                "position": pos[i].copy(),
+            }
             for i, name in enumerate(self.agents)
         }
 
@@ -152,50 +154,3 @@ class FormicParallelEnv(ParallelEnv):
     def close(self) -> None:
         self.world = None
 
-
-def idle_actions(world: World, agents: np.ndarray) -> np.ndarray:
-    """Actions (N,) int64 that leave ``agents`` where they are, as far as the core allows.
-
-    The core has no "stay" action, so per agent, in order of certainty:
-    1. a move into an obstacle, resource, cache, the world's edge or a queued agent (these
-       never move while agents act): certain to fail;
-    2. JOIN when no queue cell is on or next to the agent: certain to find nothing;
-    3. a move into a cell held by another agent: fails unless that agent leaves first;
-    4. JOIN when it is invalid now: fails unless an entry shifts into reach this step
-       (a wrong-type entry in reach costs the -1 of a wrong JOIN);
-    5. otherwise (open cell beside a joinable queue) north: the agent cannot stay put.
-    Other agents' entries are 0 (the caller overwrites them).
-    """
-    chosen = np.zeros(world.config.n_agents, dtype=np.int64)
-    agents = agents[~world.queued[agents]]  # a queued agent's action is ignored anyway
-    if len(agents) == 0:
-        return chosen
-    height, width = world.grid.shape
-    targets = world.pos[agents][:, None, :] + DIRECTION_DELTAS[None]  # (k, 4, 2)
-    inside = (targets[..., 0] >= 0) & (targets[..., 0] < height) & (targets[..., 1] >= 0) & (targets[..., 1] < width)
-    rows = np.clip(targets[..., 0], 0, height - 1)
-    cols = np.clip(targets[..., 1], 0, width - 1)
-    occupant = world.agent_at[rows, cols]
-    static = ~inside | (world.grid[rows, cols] != FREE)
-    fixed = static | ((occupant >= 0) & world.queued[np.maximum(occupant, 0)])
-    occupied = inside & (occupant >= 0)
-    queue_cell = _queue_cell_map(world)
-    near_queue = (queue_cell[rows, cols] & inside).any(axis=1) | queue_cell[world.pos[agents, 0], world.pos[agents, 1]]
-    join_valid = world.action_mask()[agents, JOIN]
-    for k, agent in enumerate(agents):
-        if fixed[k].any():
-            chosen[agent] = int(np.argmax(fixed[k]))
-        elif not near_queue[k]:
-            chosen[agent] = JOIN
-        elif occupied[k].any():
-            chosen[agent] = int(np.argmax(occupied[k]))
-        else:
-            chosen[agent] = NORTH if join_valid[k] else JOIN
-    return chosen
-
-
-def _queue_cell_map(world: World) -> np.ndarray:
-    cells = world.queue_cells.reshape(-1, 2)
-    grid = np.zeros(world.grid.shape, dtype=bool)
-    grid[cells[:, 0], cells[:, 1]] = True
-    return grid

@@ -179,7 +179,9 @@ def _pad_even(frame: np.ndarray) -> np.ndarray:
     return np.pad(frame, ((0, pad_rows), (0, pad_cols), (0, 0)), constant_values=255)
 
 
-def render_scenario(scenario: "Scenario", path: str | os.PathLike, scale: int = 4, caption: bool = False) -> np.ndarray:
+def render_scenario(
+    scenario: "Scenario", path: str | os.PathLike, scale: int = 4, caption: bool = False
+) -> np.ndarray:
     """Save a picture of a scenario's initial state (before any step); returns the frame."""
     from .world import World
 

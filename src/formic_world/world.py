@@ -47,6 +47,7 @@ from .scenario import (
 )
 
 _RESPAWN_TRIES = 1000
+NO_ACTION = -1  # an agent whose action is missing (a late or dead agent node) does nothing
 
 
 @dataclass
@@ -148,13 +149,14 @@ class World:
 
     # ------------------------------------------------------------------- step
     def step(self, actions: np.ndarray) -> StepResult:
-        """Advance one time step. ``actions[a]`` in 0-4 for every agent (ignored when queued)."""
+        """Advance one time step. ``actions[a]`` in 0-4 for every agent (ignored when queued);
+        ``NO_ACTION`` (-1) means the agent's action did not arrive: it does nothing this step."""
         actions = np.asarray(actions)
         n = self.config.n_agents
         if actions.shape != (n,):
             raise ValueError(f"expected {n} actions, got shape {actions.shape}")
-        if actions.size and (actions.min() < 0 or actions.max() > 4):
-            raise ValueError("actions must be integers in 0-4")
+        if actions.size and (actions.min() < NO_ACTION or actions.max() > 4):
+            raise ValueError("actions must be integers in 0-4 (or NO_ACTION, -1)")
         if self.done:
             raise RuntimeError("episode is over; reset the world")
         cfg = self.config
@@ -222,7 +224,9 @@ class World:
             cells = queue_cells((row, col), direction, cfg.queue_len)
             passable = self.grid == FREE
             passable[row, col] = False
-            if not passable_component_reaches(passable, anchor, cells):
+            # the new cell must not cut any other queue off the nest either
+            others = np.delete(self.queue_cells, q, axis=0).reshape(-1, 2)
+            if not passable_component_reaches(passable, anchor, np.concatenate([cells, others])):
                 continue
             self.grid[row, col] = RESOURCE
             self.resource_pos[res] = row, col
@@ -301,7 +305,8 @@ class World:
         return any(s <= t < s + self.config.wipeout_steps for s in self.scenario.wipeout_starts)
 
     def visible_pheromone(self) -> np.ndarray:
-        """The pheromone agents see: max(P, I_h * highways), 0 during a wipeout or when hidden."""
+        """The pheromone agents see: max(P, I_h * highways), 0 during a wipeout or when hidden.
+        Read-only: it may be the live map."""
         cfg = self.config
         if not cfg.pheromones_visible or (self.t > 0 and self.wipeout_active(self.t - 1)):
             return np.zeros_like(self.pheromone)

@@ -1,0 +1,228 @@
+"""The ``formic`` command line. Each subcommand prints a short human summary and, with
+``--json``, one JSON object on stdout. Heavy imports happen inside the commands so that
+``formic --help`` stays instant."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import click
+
+from .options import world_options, world_config_from
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
+@click.version_option(package_name="formic-ros")
+def cli() -> None:
+    """ForMIC: multi-agent foraging with learned pheromone communication."""
+
+
+def emit_json(obj: dict) -> None:
+    click.echo(json.dumps(obj, default=float))
+
+
+# ----------------------------------------------------------------------------------- sim
+@cli.command()
+@world_options
+@click.option("--policy", default="formic", show_default=True,
+              help="Policy for all agents, or a mix such as formic:0-31,csaf11:32-63.")
+@click.option("--model", type=click.Path(dir_okay=False), help="Checkpoint for the formic policy.")
+@click.option("--greedy", is_flag=True, help="Learned agents take the most likely action.")
+@click.option("--scenario", "scenario_file", type=click.Path(exists=True, dir_okay=False),
+              help="Run a stored scenario (its configuration wins over world options).")
+@click.option("--out", type=click.Path(file_okay=False), default="out/sim", show_default=True,
+              help="Where the final picture (and --gif) go.")
+@click.option("--gif", is_flag=True, help="Also write an animation of the episode.")
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
+def sim(policy, model, greedy, scenario_file, out, gif, as_json, **world_kw) -> None:
+    """One episode in one process, no ROS (the same result as `formic run`)."""
+    from formic_agent.episode import run_episode
+    from formic_world import Scenario, generate_scenario
+    from formic_world.render import render_frame, render_frames_to_file, save_png
+
+    from .summary import episode_summary
+
+    if scenario_file:
+        scenario = Scenario.load(scenario_file)
+    else:
+        config, seed = world_config_from(world_kw)
+        scenario = generate_scenario(config, seed)
+    frames = []
+    on_step = (lambda w: frames.append(render_frame(w, scale=3))) if gif else None
+    try:
+        result = run_episode(scenario, policy, model=model, greedy=greedy, on_step=on_step)
+    except (FileNotFoundError, ValueError) as exc:
+        raise click.ClickException(str(exc)) from exc
+    out_dir = Path(out)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    picture = out_dir / "final.png"
+    save_png(render_frame(result.world, scale=4), picture)
+    files = {"picture": str(picture)}
+    if gif:
+        files["animation"] = str(out_dir / "episode.gif")
+        render_frames_to_file(frames, files["animation"])
+    summary = episode_summary(scenario, policy, result)
+    summary["files"] = files
+    if as_json:
+        emit_json(summary)
+    else:
+        from .summary import print_episode_summary
+
+        print_episode_summary(summary)
+
+
+# ----------------------------------------------------------------------------- scenarios
+@cli.group()
+def scenarios() -> None:
+    """Generate and inspect stored scenario sets."""
+
+
+@scenarios.command("generate")
+@world_options
+@click.option("--count", default=50, show_default=True, help="Scenarios in the set (seeds seed..seed+count-1).")
+@click.option("--out", type=click.Path(file_okay=False), required=True, help="Directory for the set.")
+@click.option("--json", "as_json", is_flag=True)
+def scenarios_generate(count, out, as_json, **world_kw) -> None:
+    """Write COUNT scenarios for one size/team/obstacle setting as plain JSON files."""
+    from formic_world.scenario_sets import generate_set
+
+    config, seed = world_config_from(world_kw)
+    paths = generate_set(config, seed, count, Path(out))
+    if as_json:
+        emit_json({"directory": out, "files": [str(p) for p in paths]})
+    else:
+        click.echo(f"wrote {len(paths)} scenarios to {out}")
+
+
+@scenarios.command("show")
+@click.argument("path", type=click.Path(exists=True))
+@click.option("--json", "as_json", is_flag=True)
+def scenarios_show(path, as_json) -> None:
+    """Describe a scenario file or a directory of them (and check they load)."""
+    from formic_world import ScenarioError
+    from formic_world.scenario_sets import describe, load_set
+
+    try:
+        items = load_set(Path(path))
+    except ScenarioError as exc:
+        raise click.ClickException(str(exc)) from exc
+    rows = [describe(s) | {"file": str(p)} for p, s in items]
+    if as_json:
+        emit_json({"scenarios": rows})
+        return
+    for row in rows:
+        click.echo(
+            f"{row['file']}: {row['height']}x{row['width']}, {row['agents']} agents, "
+            f"{row['resources']} resources ({row['capacity']}), {row['obstacles']} obstacles, "
+            f"seed {row['seed']}, wipeouts at {row['wipeout_starts']}"
+        )
+
+
+# -------------------------------------------------------------------------------- render
+@cli.command()
+@click.argument("source", type=click.Path(exists=True))
+@click.option("--out", type=click.Path(), help="Output file (.png, .gif or .mp4).")
+@click.option("--scale", default=4, show_default=True)
+@click.option("--fps", default=20, show_default=True)
+def render(source, out, scale, fps) -> None:
+    """Render a scenario file (PNG) or a recording (GIF/MP4)."""
+    from formic_world import Scenario, World
+    from formic_world.render import render_frame, save_png
+
+    src = Path(source)
+    if src.is_file() and src.suffix == ".json":
+        world = World(Scenario.load(src))
+        target = Path(out or src.with_suffix(".png"))
+        save_png(render_frame(world, scale=scale), target)
+        click.echo(f"wrote {target}")
+        return
+    try:
+        from formic_ros.replay import render_recording
+    except ImportError as exc:
+        raise click.ClickException(f"cannot render recordings: {exc}") from exc
+    target = Path(out or (src.with_suffix(".mp4") if src.is_file() else src / "replay.mp4"))
+    render_recording(src, target, scale=scale, fps=fps)
+    click.echo(f"wrote {target}")
+
+
+# --------------------------------------------------------------------------------- bench
+@cli.group()
+def bench() -> None:
+    """Throughput benchmarks (run them on a quiet machine)."""
+
+
+@bench.command("world")
+@click.option("--size", default=128, show_default=True)
+@click.option("--teams", default="16,32,64,128", show_default=True)
+@click.option("--steps", default=512, show_default=True)
+@click.option("--seed", default=0, show_default=True)
+@click.option("--json", "as_json", is_flag=True)
+def bench_world(size, teams, steps, seed, as_json) -> None:
+    """Steps/s and agent-steps/s of the core with random valid actions, observations included."""
+    from formic_world.bench import bench_world as run
+
+    results = [run(size, int(n), steps, seed) for n in teams.split(",")]
+    if as_json:
+        emit_json({"size": size, "steps": steps, "results": results})
+        return
+    click.echo(f"world {size}x{size}, {steps} steps, random valid actions, observations included")
+    for r in results:
+        click.echo(f"  {r['agents']:4d} agents: {r['steps_per_s']:9.0f} steps/s  {r['agent_steps_per_s']:11.0f} agent-steps/s")
+
+
+@bench.command("policy")
+@click.option("--network", default="cpu", show_default=True, help="Network preset (cpu, cpu-nest, paper).")
+@click.option("--batch", default=128, show_default=True, help="Agents per inference batch.")
+@click.option("--threads", default=2, show_default=True)
+@click.option("--episodes", default=1, show_default=True, help="Training episode sets to time end to end.")
+@click.option("--json", "as_json", is_flag=True)
+def bench_policy(network, batch, threads, episodes, as_json) -> None:
+    """Inference agent-steps/s and end-to-end training agent-steps/s."""
+    from formic_trainer.bench import bench_policy as run
+
+    result = run(network, batch, threads, episodes)
+    if as_json:
+        emit_json(result)
+        return
+    for key, value in result.items():
+        click.echo(f"  {key}: {value:,.1f}" if isinstance(value, float) else f"  {key}: {value}")
+
+
+# --------------------------------------------------------------------------------- train
+@cli.command()
+@click.option("--preset", default="cpu", show_default=True, type=click.Choice(["cpu", "paper"]))
+@click.option("--run-dir", type=click.Path(file_okay=False), default="runs/formic", show_default=True)
+@click.option("--episodes", type=int, help="Environment episodes to add in this call.")
+@click.option("--minutes", type=float, help="Stop after this many minutes (checkpoint kept).")
+@click.option("--fresh", is_flag=True, help="Ignore an existing checkpoint in --run-dir.")
+@click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE",
+              help="Override a training field, e.g. --set network=cpu-nest --set pheromones=false.")
+def train(preset, run_dir, episodes, minutes, fresh, overrides) -> None:
+    """Train a policy; checkpoints to RUN_DIR/latest.pt, TensorBoard logs to RUN_DIR/tb."""
+    from formic_trainer.train import Trainer, make_config, parse_overrides
+
+    try:
+        cfg = make_config(preset, **parse_overrides(overrides))
+    except (TypeError, ValueError) as exc:
+        raise click.ClickException(str(exc)) from exc
+    Trainer(cfg, Path(run_dir), resume=not fresh, log=click.echo).train(episodes=episodes, minutes=minutes)
+
+
+def _register_optional() -> None:
+    """Commands from packages that may be absent in a partial install (e.g. no ROS)."""
+    for module in ("formic_cli.eval_commands", "formic_cli.ros_commands"):
+        try:
+            mod = __import__(module, fromlist=["register"])
+        except ImportError as exc:
+            if exc.name and exc.name.startswith("formic_cli."):
+                continue
+            raise
+        mod.register(cli)
+
+
+_register_optional()
+
+if __name__ == "__main__":
+    sys.exit(cli())

@@ -1,0 +1,55 @@
+"""World options shared by every command that builds a world (sim, run, eval, scenarios)."""
+
+from __future__ import annotations
+
+import functools
+
+import click
+
+from formic_world import WorldConfig
+
+
+def world_options(func):
+    """Add --agents --size --steps --seed --obstacles --resources --wipeouts --variant --view."""
+    options = [
+        click.option("--agents", default=32, show_default=True, help="Team size."),
+        click.option("--size", default=128, show_default=True, help="World side (square)."),
+        click.option("--steps", default=512, show_default=True, help="Episode length."),
+        click.option("--seed", default=0, show_default=True, help="Scenario seed."),
+        click.option("--obstacles", default=0.0, show_default=True, help="Obstacle density."),
+        click.option("--resources", type=click.Choice(["infinite", "finite"]), default="infinite",
+                     show_default=True, help="Resource capacity."),
+        click.option("--wipeouts", default=0, show_default=True, help="Pheromone wipeouts of 100 steps."),
+        click.option("--variant", type=click.Choice(["standard", "flat", "noisy", "random"]),
+                     default="standard", show_default=True, help="Pheromone variant."),
+        click.option("--view", default=11, show_default=True, help="Observation window (5, 11, 21)."),
+        click.option("--no-pheromones", is_flag=True, help="Agents see an empty pheromone channel."),
+    ]
+    for option in reversed(options):
+        func = option(func)
+
+    @functools.wraps(func)
+    def wrapper(*args, **kwargs):
+        return func(*args, **kwargs)
+
+    return wrapper
+
+
+WORLD_OPTION_NAMES = ("agents", "size", "steps", "seed", "obstacles", "resources", "wipeouts",
+                      "variant", "view", "no_pheromones")
+
+
+def world_config_from(kwargs: dict) -> tuple[WorldConfig, int]:
+    """Pop the world options out of a command's kwargs; returns (config, seed)."""
+    values = {name: kwargs.pop(name) for name in WORLD_OPTION_NAMES}
+    try:
+        config = WorldConfig(
+            height=values["size"], width=values["size"], n_agents=values["agents"],
+            episode_steps=values["steps"], obstacle_density=values["obstacles"],
+            capacity=values["resources"], wipeouts=values["wipeouts"],
+            pheromone_variant=values["variant"], view_size=values["view"],
+            pheromones_visible=not values["no_pheromones"],
+        )
+    except ValueError as exc:
+        raise click.BadParameter(str(exc)) from exc
+    return config, values["seed"]

@@ -1,0 +1,49 @@
+"""Stored scenario sets: one JSON file per scenario, named by setting and seed."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from .config import WorldConfig
+from .scenario import Scenario, ScenarioError, generate_scenario
+
+
+def set_name(config: WorldConfig) -> str:
+    return (
+        f"s{config.height}_n{config.n_agents}_o{config.obstacle_density:g}_{config.capacity}"
+        f"_w{config.wipeouts}_t{config.episode_steps}"
+    )
+
+
+def generate_set(config: WorldConfig, seed: int, count: int, directory: Path) -> list[Path]:
+    """Scenarios with seeds seed..seed+count-1; existing identical files are kept."""
+    paths = []
+    for k in range(count):
+        scenario = generate_scenario(config, seed + k)
+        path = Path(directory) / f"{set_name(config)}_seed{seed + k}.json"
+        if not path.exists() or path.read_text() != scenario.to_json():
+            scenario.save(path)
+        paths.append(path)
+    return paths
+
+
+def load_set(path: Path) -> list[tuple[Path, Scenario]]:
+    """A scenario file, or every ``*.json`` scenario in a directory (sorted by name)."""
+    files = sorted(Path(path).glob("*.json")) if Path(path).is_dir() else [Path(path)]
+    if not files:
+        raise ScenarioError(f"{path}: no scenario files (*.json)")
+    return [(f, Scenario.load(f)) for f in files]
+
+
+def describe(scenario: Scenario) -> dict:
+    cfg = scenario.config
+    return {
+        "seed": scenario.seed,
+        "height": cfg.height,
+        "width": cfg.width,
+        "agents": cfg.n_agents,
+        "resources": len(scenario.resources),
+        "capacity": cfg.capacity,
+        "obstacles": len(scenario.obstacles),
+        "wipeout_starts": list(scenario.wipeout_starts),
+    }
