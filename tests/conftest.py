@@ -6,8 +6,9 @@ their queues run (spot 0 first):
   queue 1, NE, north: (6,8) (5,8) (4,8) (3,8) (2,8)
   queue 2, SW, south: (9,7) (10,7) (11,7) (12,7) (13,7)
   queue 3, SE, east:  (8,9) (8,10) (8,11) (8,12) (8,13)
-Resource i owns queue 4+i. No action is a no-op, so an agent meant to stay put is given a
-move into a blocked cell or a JOIN far from every queue (both leave it where it is).
+Resource i owns queue 4+i. An agent meant to stay put is given a move into a blocked cell or
+a JOIN far from every queue: both leave it where it is while it still acts (pays the step,
+deposits when carrying), unlike NO_ACTION.
 """
 
 from __future__ import annotations
@@ -17,8 +18,8 @@ from collections.abc import Iterable, Mapping
 import numpy as np
 
 from formic_world import Scenario, World, WorldConfig
-from formic_world.geometry import EAST, JOIN, NORTH, SOUTH, WEST
-from formic_world.scenario import AgentStart, ResourceSpec
+from formic_world.geometry import JOIN
+from formic_world.scenario import AgentStart, ResourceSpec, validate_scenario
 
 NW_QUEUE = [(7, 6), (7, 5), (7, 4), (7, 3), (7, 2)]
 NE_QUEUE = [(6, 8), (5, 8), (4, 8), (3, 8), (2, 8)]
@@ -45,12 +46,12 @@ def build_scenario(
     width: int = 16,
     **config: object,
 ) -> Scenario:
-    """A hand-made scenario; ``config`` overrides WorldConfig fields."""
+    """A hand-made scenario, checked like a loaded file; ``config`` overrides WorldConfig fields."""
     agents, resources = tuple(agents), tuple(resources)
     if any(r.capacity > 0 for r in resources):
         config.setdefault("capacity", "finite")
     cfg = WorldConfig(height=height, width=width, n_agents=len(agents), **config)
-    return Scenario(
+    scenario = Scenario(
         config=cfg,
         seed=seed,
         obstacles=tuple(obstacles),
@@ -58,6 +59,8 @@ def build_scenario(
         agents=agents,
         wipeout_starts=tuple(wipeout_starts),
     )
+    validate_scenario(scenario)
+    return scenario
 
 
 def build_world(agents: Iterable[AgentStart], **kwargs: object) -> World:

@@ -150,10 +150,11 @@ def act_agents(
 
 
 @nb.njit(cache=True)
-def _release(q, spot, queue_members, queue_count, queue_head, queue_of, queue_len):
+def _release(q, spot, queue_members, queue_count, queue_head, queue_of, spot_of, queue_len):
     a = queue_members[q, spot]
     queue_members[q, spot] = -1
     queue_of[a] = -1
+    spot_of[a] = -1
     queue_count[q] -= 1
     if queue_count[q] > 0:
         for s in range(queue_len):
@@ -197,7 +198,7 @@ def serve_queues(
             unloaded += amount
             if load[a] == 0:
                 reward[a] += r_deposit
-                _release(q, 0, queue_members, queue_count, queue_head, queue_of, queue_len)
+                _release(q, 0, queue_members, queue_count, queue_head, queue_of, spot_of, queue_len)
         else:
             res = queue_resource[q]
             amount = min(gather_ticks, load_full - load[a])
@@ -208,12 +209,12 @@ def serve_queues(
             if load[a] == load_full:
                 reward[a] += r_collect
                 intensity[a] = 1.0
-                _release(q, 0, queue_members, queue_count, queue_head, queue_of, queue_len)
+                _release(q, 0, queue_members, queue_count, queue_head, queue_of, spot_of, queue_len)
             if resource_remaining[res] == 0:
                 # Depleted: everyone still queued is released where they stand.
                 for s in range(queue_len):
                     if queue_members[q, s] >= 0:
-                        _release(q, s, queue_members, queue_count, queue_head, queue_of, queue_len)
+                        _release(q, s, queue_members, queue_count, queue_head, queue_of, spot_of, queue_len)
                 depleted[q] = True
     return unloaded
 

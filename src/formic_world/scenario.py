@@ -136,6 +136,8 @@ class Scenario:
             text = Path(path).read_text()
         except UnicodeDecodeError as exc:
             raise ScenarioError(f"{path}: not a text file") from exc
+        except OSError as exc:
+            raise ScenarioError(f"{path}: cannot read ({exc.strerror})") from exc
         try:
             return cls.from_json(text)
         except ScenarioError as exc:
@@ -328,9 +330,12 @@ def validate_scenario(scenario: Scenario) -> None:
     def inside(r: int, c: int) -> bool:
         return 0 <= r < height and 0 <= c < width
 
+    caches = set(nest_cache_cells(height, width))
     for r, c in scenario.obstacles:
         if not inside(r, c):
             raise ScenarioError(f"obstacle ({r}, {c}) is outside the {height}x{width} world")
+        if (r, c) in caches:
+            raise ScenarioError(f"obstacle ({r}, {c}) covers a nest cache")
     occupied = np.zeros((height, width), dtype=bool)
     for cache in nest_cache_cells(height, width):
         occupied[cache] = True
@@ -351,6 +356,8 @@ def validate_scenario(scenario: Scenario) -> None:
     queue = all_queue_cells(cfg, scenario.resources)
     if occupied[queue[:, 0], queue[:, 1]].any():
         raise ScenarioError("a queue cell is blocked")
+    if len(np.unique(queue, axis=0)) != len(queue):
+        raise ScenarioError("two queues share a queue cell")
     if len(scenario.agents) != cfg.n_agents:
         raise ScenarioError(f"{len(scenario.agents)} agent starts for n_agents={cfg.n_agents}")
     seen = set()
@@ -362,6 +369,10 @@ def validate_scenario(scenario: Scenario) -> None:
         seen.add((agent.row, agent.col))
         if agent.cache_queue not in (-1, 0, 1, 2, 3):
             raise ScenarioError(f"agent {i}: cache_queue {agent.cache_queue} is not -1 or 0-3")
-    for s in scenario.wipeout_starts:
+    previous_end = 0
+    for s in sorted(scenario.wipeout_starts):
         if not 0 <= s <= cfg.episode_steps - cfg.wipeout_steps:
             raise ScenarioError(f"wipeout start {s} does not fit in the episode")
+        if s < previous_end:
+            raise ScenarioError(f"wipeout starting at {s} overlaps the previous one")
+        previous_end = s + cfg.wipeout_steps

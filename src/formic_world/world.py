@@ -319,7 +319,7 @@ class World:
         h = hashlib.sha256()
         for array in (
             self.grid, self.pos, self.load, self.queue_of, self.queue_members, self.intensity,
-            self.last_move, self.pheromone, self.resource_pos, self.resource_remaining,
+            self.last_move, self.pheromone, self.resource_pos, self.resource_dir, self.resource_remaining,
             self.rng.bit_generator.state["state"]["state"].to_bytes(16, "little"),
         ):
             h.update(np.ascontiguousarray(array).tobytes() if isinstance(array, np.ndarray) else array)
