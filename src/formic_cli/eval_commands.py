@@ -1,0 +1,157 @@
+"""``formic eval``: the paper's evaluation matrix (SPEC §8) for any list of algorithms."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import click
+
+DEFAULT_ALGORITHMS = "formic,planner,csaf,csaf11,cardinality"
+DEFAULT_SIZES, DEFAULT_TEAMS, DEFAULT_OBSTACLES = "128", "16,32,64,128", "0,0.05"
+DEFAULT_ENVS = "infinite,finite,wipeout"
+
+
+def _split(text: str, kind, option: str) -> list:
+    try:
+        values = [kind(v.strip()) for v in text.split(",") if v.strip()]
+    except ValueError as exc:
+        raise click.BadParameter(f"{text!r}: {exc}", param_hint=option) from exc
+    if not values:
+        raise click.BadParameter("empty list", param_hint=option)
+    return list(dict.fromkeys(values))
+
+
+@click.command("eval")
+@click.option("--algorithms", default=DEFAULT_ALGORITHMS, show_default=True,
+              help="Comma list of formic, planner, csaf, csaf11, cardinality, random.")
+@click.option("--sizes", help=f"World sides, comma list [default: {DEFAULT_SIZES}].")
+@click.option("--teams", help=f"Team sizes, comma list [default: {DEFAULT_TEAMS}].")
+@click.option("--obstacles", help=f"Obstacle densities, comma list [default: {DEFAULT_OBSTACLES}].")
+@click.option("--env", "envs", help=f"Environments: comma list of infinite, finite (respawning), "
+              f"wipeout (infinite, 3 x 100-step wipeouts; steps//4 below 400 steps) [default: {DEFAULT_ENVS}].")
+@click.option("--scenarios", default="50", show_default=True,
+              help="Scenarios per setting, generated into OUT/scenarios; or a directory of stored "
+                   "scenario files (their settings, filtered by the options above when given).")
+@click.option("--seed", default=0, show_default=True, help="Seed the scenario seeds derive from.")
+@click.option("--steps", type=click.IntRange(1), help="Episode length [default: 512; with a scenario "
+              "directory, the files' length].")
+@click.option("--out", type=click.Path(file_okay=False), default="out/eval", show_default=True,
+              help="Results directory; rerunning the same command there resumes.")
+@click.option("--model", type=click.Path(dir_okay=False), help="Checkpoint of the formic policy.")
+@click.option("--greedy", is_flag=True, help="The learned policy takes its most likely action.")
+@click.option("--no-pheromones", is_flag=True,
+              help="The learned policy sees an empty pheromone channel (the paper's ablation).")
+@click.option("--workers", default=2, show_default=True, type=click.IntRange(1),
+              help="Episodes run in parallel processes (1: in this process; fairest for timings).")
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
+@click.pass_context
+def eval_command(ctx, algorithms, sizes, teams, obstacles, envs, scenarios, seed, steps, out, model, greedy,
+                 no_pheromones, workers, as_json) -> None:
+    """Run every algorithm on the same stored scenarios; write CSV/JSON results, figures and
+    OUT/results.md (ours beside the paper's numbers). Interrupt with Ctrl-C and rerun to resume."""
+    from formic_agent.registry import POLICY_NAMES
+    from formic_eval import evaluate, generate_matrix, load_matrix, settings_grid
+    from formic_eval.matrix import ENVIRONMENTS
+    from formic_world import ScenarioError
+
+    names = _split(algorithms, str, "--algorithms")
+    unknown = [n for n in names if n not in POLICY_NAMES]
+    if unknown:
+        raise click.BadParameter(f"unknown {', '.join(unknown)}; choose from {', '.join(POLICY_NAMES)}",
+                                 param_hint="--algorithms")
+    size_list = _split(sizes, int, "--sizes") if sizes else None
+    team_list = _split(teams, int, "--teams") if teams else None
+    obstacle_list = _split(obstacles, float, "--obstacles") if obstacles else None
+    env_list = _split(envs, str, "--env") if envs else None
+    bad_envs = [e for e in env_list or () if e not in ENVIRONMENTS]
+    if bad_envs:
+        raise click.BadParameter(f"unknown {', '.join(bad_envs)}; choose from {', '.join(ENVIRONMENTS)}",
+                                 param_hint="--env")
+
+    options = _policy_options(names, model, greedy, no_pheromones)
+    out_dir = Path(out)
+    try:
+        if scenarios.strip().isdigit():
+            count = int(scenarios)
+            if count < 1:
+                raise click.BadParameter("needs at least one scenario", param_hint="--scenarios")
+            grid = settings_grid(
+                size_list or _split(DEFAULT_SIZES, int, "--sizes"), team_list or _split(DEFAULT_TEAMS, int, "--teams"),
+                obstacle_list if obstacle_list is not None else _split(DEFAULT_OBSTACLES, float, "--obstacles"),
+                env_list or _split(DEFAULT_ENVS, str, "--env"), steps or 512,
+            )
+            matrix = generate_matrix(grid, count, seed, out_dir / "scenarios")
+            source = str(out_dir / "scenarios")
+        elif Path(scenarios).is_dir():
+            matrix = load_matrix(Path(scenarios), size_list, team_list, obstacle_list, env_list, steps)
+            source = str(Path(scenarios))
+        else:
+            raise click.BadParameter(f"{scenarios!r} is neither a count nor a directory", param_hint="--scenarios")
+    except (ScenarioError, ValueError) as exc:
+        raise click.ClickException(f"scenarios: {exc}") from exc
+    if not matrix:
+        raise click.ClickException(f"no scenarios in {scenarios} match the selected settings")
+
+    from formic_eval.runner import EpisodeError
+
+    try:
+        summary = evaluate(matrix, names, options, out_dir, workers=workers, source=source)
+    except EpisodeError as exc:
+        raise click.ClickException(f"episode failed ({exc}); finished episodes are kept, rerun to resume") from exc
+    if as_json:
+        click.echo(json.dumps(summary, default=float))
+    else:
+        _print_summary(summary)
+    if summary["interrupted"]:
+        ctx.exit(130)
+
+
+def _policy_options(names: list[str], model: str | None, greedy: bool, no_pheromones: bool):
+    """Check every algorithm can be built (baseline module present, model file loads)."""
+    from formic_agent.registry import DEFAULT_MODEL, make_policy
+    from formic_eval import PolicyOptions
+    from formic_eval.matrix import file_digest
+
+    if "formic" in names and not Path(model or DEFAULT_MODEL).exists():
+        raise click.ClickException(
+            f"formic: no model at {model or DEFAULT_MODEL}: train one with `formic train` or pass --model"
+        )
+    for name in names:
+        try:
+            make_policy(name, model=model, greedy=greedy)
+        except FileNotFoundError as exc:
+            raise click.ClickException(f"{name}: {exc}") from exc
+        except ImportError as exc:
+            raise click.ClickException(f"algorithm {name} is not available: {exc}") from exc
+        except Exception as exc:  # a checkpoint that does not load
+            raise click.ClickException(f"{name}: cannot build the policy: {type(exc).__name__}: {exc}") from exc
+    if "formic" not in names:
+        return PolicyOptions(greedy=greedy, no_pheromones=no_pheromones)
+    path = str(Path(model) if model else DEFAULT_MODEL)
+    return PolicyOptions(model=path, model_digest=file_digest(path), greedy=greedy, no_pheromones=no_pheromones)
+
+
+def _print_summary(summary: dict) -> None:
+    episodes = summary["episodes"]
+    click.echo(
+        f"{episodes['done']}/{episodes['total']} episodes ({episodes['computed']} run now, "
+        f"{episodes['reused']} reused) in {summary['wall_s']:.1f} s"
+    )
+    for c in summary["cells"]:
+        name = c["algorithm"] + (f" ({c['variant']})" if c["variant"] else "")
+        ratio = "" if c["food_ratio_to_planner"] is None else f"  {c['food_ratio_to_planner']:.2f} x planner"
+        paper = "" if c["paper_food"] is None else f"  paper {c['paper_food']:.0f}"
+        click.echo(
+            f"  {c['size']}x{c['size']} {c['env']:8s} obst {c['obstacles']:<4g} {c['agents']:4d} agents  "
+            f"{name:14s} food {c['food_mean']:7.1f} ± {c['food_std']:5.1f} (n={c['n']})  "
+            f"{c['step_ms_mean']:8.2f} ms/step{ratio}{paper}"
+        )
+    if summary["interrupted"]:
+        click.echo("interrupted: rerun the same command to resume", err=True)
+    for kind, path in summary["files"].items():
+        click.echo(f"{kind}: {path}")
+
+
+def register(cli: click.Group) -> None:
+    cli.add_command(eval_command)

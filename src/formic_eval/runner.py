@@ -1,0 +1,251 @@
+"""Running the episodes: a process pool, a progress bar, and a crash-safe log to resume from.
+
+Each finished episode is one JSON line appended to ``episodes.jsonl`` by the parent process
+alone (flushed and fsynced), so an interrupted run loses at most the episodes in flight; a
+torn last line (killed mid-write) is cut off on the next start and that episode is redone.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import signal
+import sys
+import time
+import traceback
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from multiprocessing import get_context
+from pathlib import Path
+
+import numpy as np
+
+from .matrix import PolicyOptions, Setting, StoredScenario, Task, plan_tasks
+
+
+class EpisodeError(RuntimeError):
+    """An episode raised; names the algorithm and scenario file."""
+
+
+class EpisodeLog:
+    """The append-only record of finished episodes, keyed by :attr:`Task.key`."""
+
+    def __init__(self, path: Path):
+        self.path = Path(path)
+        self.skipped_lines = 0
+        self.repaired = False
+        self._handle = None
+
+    def load(self) -> dict[str, dict]:
+        """Finished episodes; cuts off a torn last line and skips unreadable ones."""
+        if not self.path.exists():
+            return {}
+        data = self.path.read_bytes()
+        end = data.rfind(b"\n") + 1
+        if end < len(data):
+            with open(self.path, "r+b") as handle:
+                handle.truncate(end)
+                handle.flush()
+                os.fsync(handle.fileno())
+            self.repaired = True
+        records: dict[str, dict] = {}
+        for line in data[:end].splitlines():
+            if not line.strip():
+                continue
+            try:
+                record = json.loads(line)
+                records[record["key"]] = record
+            except (ValueError, KeyError, TypeError):
+                self.skipped_lines += 1
+        return records
+
+    def append(self, record: dict) -> None:
+        if self._handle is None:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._handle = open(self.path, "ab")
+        self._handle.write((json.dumps(record, separators=(",", ":")) + "\n").encode())
+        self._handle.flush()
+        os.fsync(self._handle.fileno())
+
+    def close(self) -> None:
+        if self._handle is not None:
+            self._handle.close()
+            self._handle = None
+
+
+_LEARNED_CACHE: dict[tuple, object] = {}
+
+
+def run_task(task: Task) -> dict:
+    """Run one episode and return its log record (runs in a worker process)."""
+    from formic_agent.episode import run_episode
+    from formic_agent.registry import make_policy
+    from formic_world import Scenario
+
+    stored = task.scenario
+    setting = stored.setting
+    try:
+        scenario = Scenario.load(stored.path)
+        if task.no_pheromones:
+            scenario = dataclasses.replace(scenario, config=scenario.config.replace(pheromones_visible=False))
+        if task.algorithm == "formic":
+            # Loading a checkpoint is the costly part; reset() clears the LSTM state per episode.
+            cache_key = (task.model, task.model_digest, task.greedy)
+            if cache_key not in _LEARNED_CACHE:
+                _LEARNED_CACHE[cache_key] = make_policy("formic", model=task.model, greedy=task.greedy)
+            policy = _LEARNED_CACHE[cache_key]
+        else:
+            policy = make_policy(task.algorithm)
+        start = time.perf_counter()
+        result = run_episode(
+            scenario, task.algorithm, steps=setting.steps,
+            policies=[(policy, np.arange(scenario.config.n_agents))],
+        )
+        wall = time.perf_counter() - start
+    except Exception as exc:
+        frame = traceback.extract_tb(exc.__traceback__)[-1]
+        raise EpisodeError(
+            f"{task.algorithm} on {stored.path.name}: {type(exc).__name__}: {exc} "
+            f"(at {frame.filename}:{frame.lineno} in {frame.name})"
+        ) from exc
+    return {
+        "key": task.key,
+        "algorithm": task.algorithm,
+        "variant": task.variant,
+        "model": task.model_digest,
+        "size": setting.size,
+        "agents": setting.agents,
+        "obstacles": setting.obstacles,
+        "env": setting.env,
+        "steps": setting.steps,
+        "seed": stored.seed,
+        "scenario": stored.path.name,
+        "scenario_digest": stored.digest,
+        "food": float(result.food),
+        "step_ms_mean": float(result.decision_seconds.mean() * 1e3),
+        "world_step_ms_mean": float(result.step_seconds.mean() * 1e3),
+        "wall_s": round(wall, 4),
+        "food_curve": [round(float(v), 4) for v in result.food_curve],
+    }
+
+
+def _init_worker(threads: int) -> None:
+    # Ctrl-C goes to the whole process group: let the parent alone handle it.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    os.environ["OMP_NUM_THREADS"] = str(threads)
+    os.environ["MKL_NUM_THREADS"] = str(threads)
+
+
+@dataclass
+class RunStats:
+    computed: int = 0
+    reused: int = 0
+    interrupted: bool = False
+    wall_s: float = 0.0
+
+
+def run_tasks(
+    tasks: list[Task],
+    log: EpisodeLog,
+    done: dict[str, dict],
+    workers: int = 2,
+    progress: bool | None = None,
+    on_record: Callable[[dict], None] | None = None,
+) -> RunStats:
+    """Run the tasks not yet in ``done`` (which gains the new records); Ctrl-C stops cleanly.
+
+    ``progress=None`` shows the bar only on a terminal.
+    """
+    from tqdm import tqdm
+
+    pending = [t for t in tasks if t.key not in done]
+    stats = RunStats(reused=len(tasks) - len(pending))
+    start = time.perf_counter()
+    disable = None if progress is None else not progress
+    bar = tqdm(total=len(pending), desc="formic eval", unit="episode", file=sys.stderr, disable=disable,
+               dynamic_ncols=True)
+    results = _results(pending, workers)
+    try:
+        for record in results:
+            log.append(record)
+            done[record["key"]] = record
+            stats.computed += 1
+            where = f"{record['algorithm']} {record['size']}/{record['agents']}/{record['env']}"
+            bar.set_postfix_str(where, refresh=False)
+            bar.update()
+            if on_record is not None:
+                on_record(record)
+    except KeyboardInterrupt:
+        stats.interrupted = True
+    finally:
+        results.close()
+        bar.close()
+        log.close()
+        stats.wall_s = time.perf_counter() - start
+    return stats
+
+
+def _results(pending: list[Task], workers: int) -> Iterator[dict]:
+    if workers <= 1 or len(pending) <= 1:
+        for task in pending:
+            yield run_task(task)
+        return
+    workers = min(workers, len(pending))
+    threads = max(1, (os.cpu_count() or 1) // workers)
+    pool = get_context("spawn").Pool(workers, initializer=_init_worker, initargs=(threads,))
+    try:
+        yield from pool.imap_unordered(run_task, pending, chunksize=1)
+        pool.close()
+    finally:
+        pool.terminate()
+        pool.join()
+
+
+def evaluate(
+    matrix: dict[Setting, list[StoredScenario]],
+    algorithms: list[str],
+    options: PolicyOptions,
+    out: Path,
+    workers: int = 2,
+    progress: bool | None = None,
+    source: str = "",
+) -> dict:
+    """Run (or resume) every episode of the matrix, then write the results, figures and report.
+
+    Returns the summary that ``formic eval --json`` prints (cells without their curves).
+    """
+    from .paper import markdown_report
+    from .plots import plot_all
+    from .results import aggregate, public_cell, write_results
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    tasks = plan_tasks(matrix, algorithms, options)
+    log = EpisodeLog(out / "episodes.jsonl")
+    done = log.load()
+    stats = run_tasks(tasks, log, done, workers=workers, progress=progress)
+    records = [done[t.key] for t in tasks if t.key in done]
+    cells = aggregate(records)
+    run = {
+        "algorithms": algorithms,
+        "scenarios": source,
+        "settings": len(matrix),
+        "episodes": {"total": len(tasks), "done": len(records), "computed": stats.computed, "reused": stats.reused},
+        "interrupted": stats.interrupted,
+        "workers": workers,
+        "model": options.model,
+        "model_digest": options.model_digest,
+        "greedy": options.greedy,
+        "no_pheromones": options.no_pheromones,
+        "wall_s": round(stats.wall_s, 3),
+        "log": {"path": str(log.path), "torn_line_removed": log.repaired, "unreadable_lines": log.skipped_lines},
+    }
+    files = {"episodes_jsonl": str(log.path), "scenarios": source}
+    if cells:
+        files |= write_results(out, records, cells, run)
+        files["figures"] = plot_all(cells, out)
+        report = out / "results.md"
+        report.write_text(markdown_report(cells, run))
+        files["report"] = str(report)
+    return {"out": str(out)} | run | {"cells": [public_cell(c) for c in cells], "files": files}
