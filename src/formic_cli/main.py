@@ -199,20 +199,28 @@ def bench_policy(network, batch, threads, episodes, as_json) -> None:
 @click.option("--fresh", is_flag=True, help="Ignore an existing checkpoint in --run-dir.")
 @click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE",
               help="Override a training field, e.g. --set network=cpu-nest --set pheromones=false.")
-def train(preset, run_dir, episodes, minutes, fresh, overrides) -> None:
-    """Train a policy; checkpoints to RUN_DIR/latest.pt, TensorBoard logs to RUN_DIR/tb."""
-    from formic_trainer.train import Trainer, make_config, parse_overrides
+@click.option("--export", type=click.Path(dir_okay=False),
+              help="Afterwards write the weights alone (a small model file) here.")
+def train(preset, run_dir, episodes, minutes, fresh, overrides, export) -> None:
+    """Train a policy; checkpoints to RUN_DIR/latest.pt, TensorBoard logs to RUN_DIR/tb.
+
+    Resumes from RUN_DIR/latest.pt when it exists. `--episodes 0 --export FILE` only exports."""
+    from formic_trainer.train import Trainer, export_model, make_config, parse_overrides
 
     try:
         cfg = make_config(preset, **parse_overrides(overrides))
     except (TypeError, ValueError) as exc:
         raise click.ClickException(str(exc)) from exc
-    Trainer(cfg, Path(run_dir), resume=not fresh, log=click.echo).train(episodes=episodes, minutes=minutes)
+    if episodes != 0:
+        Trainer(cfg, Path(run_dir), resume=not fresh, log=click.echo).train(episodes=episodes, minutes=minutes)
+    if export:
+        export_model(Path(run_dir) / "latest.pt", Path(export))
+        click.echo(f"exported {export}")
 
 
 def _register_optional() -> None:
     """Commands from packages that may be absent in a partial install (e.g. no ROS)."""
-    for module in ("formic_cli.eval_commands", "formic_cli.ros_commands"):
+    for module in ("formic_cli.eval_commands", "formic_cli.ros_commands", "formic_cli.ros_record_commands"):
         try:
             mod = __import__(module, fromlist=["register"])
         except ImportError as exc:

@@ -348,6 +348,15 @@ class Trainer:
 
     def _resume(self, path: Path) -> None:
         payload = read_checkpoint(path)
+        stored = payload.get("train_config", {})
+        ignored = {"total_episodes", "threads", "checkpoint_every"}
+        changed = sorted(k for k, v in self.cfg.to_dict().items()
+                         if k not in ignored and k in stored and _plain(stored[k]) != _plain(v))
+        if changed:
+            raise ValueError(
+                f"{path} was trained with different settings ({', '.join(changed)}); "
+                "use the same settings, a new --run-dir, or --fresh"
+            )
         self.net.load_state_dict(payload["state_dict"])
         self.optimizer.load_state_dict(payload["optimizer"])
         progress = payload["progress"]
@@ -462,6 +471,11 @@ def export_model(checkpoint: Path, out: Path) -> None:
     net, payload = load_network(checkpoint)
     save_checkpoint(out, net, train_config=payload.get("train_config", {}), progress=payload.get("progress", {}))
 
+
+
+def _plain(value):
+    """Tuples and lists compare equal after a JSON round trip."""
+    return json.loads(json.dumps(value))
 
 
 def parse_overrides(pairs: tuple[str, ...] | list[str]) -> dict:
