@@ -1,0 +1,164 @@
+"""``formic record``, ``formic replay`` and ``formic trainer``: recordings and the trainer node.
+ROS and torch are imported inside the commands, so ``formic --help`` stays instant."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import click
+
+NAMESPACE_HELP = "ROS namespace of the ForMIC topics and nodes."
+DOMAIN_HELP = "ROS_DOMAIN_ID for this process (default: the environment's)."
+
+
+def _emit(obj: dict) -> None:
+    click.echo(json.dumps(obj, default=str))
+
+
+def _log(text: str) -> None:
+    click.echo(text, err=True)
+
+
+def _split(values: tuple[str, ...]) -> tuple[str, ...]:
+    return tuple(t.strip() for v in values for t in v.split(",") if t.strip())
+
+
+# -------------------------------------------------------------------------------- record
+@click.command("record")
+@click.option("--out", required=True, type=click.Path(file_okay=False),
+              help="Recording directory to create (rosbag2 with MCAP storage).")
+@click.option("--topics", multiple=True, metavar="TOPIC[,TOPIC]",
+              help="Absolute topic names to record (default: every topic in the namespace, and /clock).")
+@click.option("--namespace", default="/formic", show_default=True, help=NAMESPACE_HELP)
+@click.option("--domain-id", type=int, help=DOMAIN_HELP)
+@click.option("--model", type=click.Path(exists=True, dir_okay=False),
+              help="Checkpoint the learned agents run: its id is stored with the recording.")
+@click.option("--duration", type=float, help="Stop after this many seconds (default: at Ctrl-C or SIGTERM).")
+@click.option("--chunk-kb", default=256, show_default=True,
+              help="MCAP chunk size; a killed recorder loses at most its last chunk (or 0.5 s).")
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON object at the end.")
+def record_command(out, topics, namespace, domain_id, model, duration, chunk_kb, as_json) -> None:
+    """Record ForMIC topics into a rosbag2 recording (MCAP) until interrupted."""
+    from formic_agent.checkpoint import checkpoint_id
+    from formic_ros.recorder import RecorderOptions, record
+
+    if Path(out).exists():
+        raise click.ClickException(f"{out} exists; a recording is never written over")
+    options = RecorderOptions(namespace=namespace, topics=_split(topics),
+                              checkpoint_id=checkpoint_id(model) if model else "", chunk_bytes=chunk_kb * 1024)
+    try:
+        result = record(out, options, domain_id=domain_id, duration_s=duration,
+                        on_ready=lambda node: _log(f"recording to {out} (Ctrl-C to stop)"))
+    except ValueError as exc:
+        raise click.ClickException(str(exc)) from exc
+    if as_json:
+        _emit(result)
+        return
+    click.echo(f"wrote {result['recording']}: {result['messages']} messages on {len(result['topics'])} topics")
+    for topic, count in sorted(result["topics"].items()):
+        click.echo(f"  {topic}: {count}")
+    for topic, why in result["skipped"].items():
+        click.echo(f"  not recorded: {topic} ({why})")
+
+
+# -------------------------------------------------------------------------------- replay
+@click.command("replay")
+@click.argument("recording", type=click.Path(exists=True))
+@click.option("--verify", is_flag=True, help="Re-simulate from the scenario and applied actions; every "
+              "recorded state must match bit for bit (exit status 1 if not).")
+@click.option("--republish", is_flag=True, help="Publish the recorded topics again on their recorded clock.")
+@click.option("--repair", is_flag=True, help="Rebuild the index and metadata.yaml of a recording cut short "
+              "(the original file is kept as <name>.mcap.truncated).")
+@click.option("--rate", default=1.0, show_default=True, help="--republish speed factor (0: as fast as possible).")
+@click.option("--topics", multiple=True, metavar="TOPIC[,TOPIC]", help="--republish only these topics.")
+@click.option("--wait", default=1.0, show_default=True,
+              help="--republish starts once every topic has a subscriber, or after this many seconds.")
+@click.option("--domain-id", type=int, help=DOMAIN_HELP)
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
+def replay_command(recording, verify, republish, repair, rate, topics, wait, domain_id, as_json) -> None:
+    """Verify, republish or repair a recording (without a mode: describe it)."""
+    from formic_ros.bag import Recording, RecordingError, repair_recording
+
+    if verify + republish + repair > 1:
+        raise click.UsageError("choose one of --verify, --republish, --repair")
+    try:
+        if repair:
+            report = repair_recording(recording)
+            result = {"repaired": report.repaired, "messages": report.messages,
+                      "kept": str(report.kept) if report.kept else None, "note": report.note}
+            if as_json:
+                _emit(result)
+            else:
+                click.echo(report.note)
+        elif verify:
+            from formic_ros.replay import verify_recording
+
+            report = verify_recording(recording)
+            if as_json:
+                _emit(report.to_dict())
+            else:
+                click.echo(report.summary())
+            if not report.ok:
+                sys.exit(1)
+        elif republish:
+            from formic_ros.replay import republish as play
+
+            result = play(recording, rate=rate, domain_id=domain_id, topics=_split(topics), wait_s=wait, log=_log)
+            if as_json:
+                _emit(result)
+            else:
+                click.echo(f"republished {result['messages']} messages on {len(result['topics'])} topics "
+                           f"in {result['seconds']:.1f} s")
+        else:
+            rec = Recording(recording)
+            if as_json:
+                _emit({"file": str(rec.mcap_path), "complete": rec.complete, "streamed": rec.streamed,
+                       "problem": rec.problem, "run_info": rec.run_info,
+                       "topics": {t: {"type": i.msgtype, "messages": i.count} for t, i in rec.topics.items()}})
+                return
+            click.echo(rec.describe())
+            for topic, info in sorted(rec.topics.items()):
+                click.echo(f"  {topic} [{info.msgtype}]: {info.count}")
+            for key in ("seed", "config_digest", "policies", "checkpoint_id", "package_version"):
+                if key in rec.run_info:
+                    click.echo(f"  {key}: {rec.run_info[key]}")
+    except (RecordingError, ValueError, OSError) as exc:
+        raise click.ClickException(str(exc)) from exc
+
+
+# ------------------------------------------------------------------------------- trainer
+@click.command("trainer")
+@click.option("--preset", default="cpu", show_default=True, type=click.Choice(["cpu", "paper"]))
+@click.option("--run-dir", type=click.Path(file_okay=False), default="runs/formic-ros", show_default=True,
+              help="Checkpoints (latest.pt) and TensorBoard logs; resumed unless --fresh.")
+@click.option("--fresh", is_flag=True, help="Ignore an existing checkpoint in --run-dir.")
+@click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE", help="Override a training field.")
+@click.option("--max-updates", type=int, help="Stop after this many updates (default: at Ctrl-C or SIGTERM).")
+@click.option("--max-lag", default=4, show_default=True,
+              help="Learn from rollouts at most this many weights versions old; drop older ones.")
+@click.option("--namespace", default="/formic", show_default=True, help=NAMESPACE_HELP)
+@click.option("--domain-id", type=int, help=DOMAIN_HELP)
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON object at the end.")
+def trainer_command(preset, run_dir, fresh, overrides, max_updates, max_lag, namespace, domain_id, as_json) -> None:
+    """The trainer node: learn from the hosts' rollouts, broadcast versioned weights."""
+    from formic_ros.trainer_node import serve_trainer
+    from formic_trainer.train import make_config, parse_overrides
+
+    try:
+        cfg = make_config(preset, **parse_overrides(overrides))
+        result = serve_trainer(cfg, Path(run_dir), resume=not fresh, namespace=namespace, domain_id=domain_id,
+                               max_updates=max_updates, max_lag=max_lag, log=_log)
+    except (TypeError, ValueError) as exc:
+        raise click.ClickException(str(exc)) from exc
+    if as_json:
+        _emit(result)
+    else:
+        click.echo(f"trainer stopped at weights version {result['version']} ({result['updates']} updates here, "
+                   f"{result['dropped']} rollouts dropped); checkpoint in {run_dir}/latest.pt")
+
+
+def register(cli: click.Group) -> None:
+    for command in (record_command, replay_command, trainer_command):
+        cli.add_command(command)

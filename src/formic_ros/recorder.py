@@ -1,0 +1,215 @@
+"""The recorder node: every ForMIC topic (and ``/clock``) into a rosbag2 recording with MCAP
+storage, as the CDR bytes that arrived (``raw=True``: nothing is decoded on the hot path).
+
+The conventional topics are subscribed at start, so a launcher can wait for the recorder
+before the world steps; the graph is polled for the rest (per-agent topics, anything a user's
+node publishes in the namespace), with the QoS its publishers offer. The latched scenario
+description becomes the recording's run description (seed, scenario, configuration digest,
+policies, model checkpoint id, package version). SIGINT or SIGTERM closes the recording
+cleanly; a SIGKILL leaves every chunk flushed so far readable (see :mod:`formic_ros.bag`).
+"""
+
+from __future__ import annotations
+
+import importlib
+import signal
+import time
+from collections import Counter
+from dataclasses import dataclass
+from pathlib import Path
+
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
+
+from . import qos as topics
+from .bag import BagWriter, package_version
+
+DISCOVERY_PERIOD_S = 0.2
+STREAM_DEPTH = 100  # a recorder must not drop: deep reader history for bursts
+SCENARIO_TYPE = "formic_interfaces/msg/ScenarioDescription"
+
+# The world's topics (relative to the namespace): subscribed at once, latched or not.
+CONVENTIONAL_TOPICS: dict[str, tuple[str, bool]] = {
+    topics.SCENARIO: (SCENARIO_TYPE, True),
+    topics.SUMMARY: ("std_msgs/msg/String", True),
+    topics.STATE: ("formic_interfaces/msg/WorldState", False),
+    topics.APPLIED_ACTIONS: ("formic_interfaces/msg/ActionBatch", False),
+    topics.OBSERVATIONS: ("formic_interfaces/msg/ObservationBatch", False),
+    topics.ACTIONS: ("formic_interfaces/msg/ActionBatch", False),
+    topics.SCORE: ("std_msgs/msg/Float64", False),
+    topics.MAP: ("nav_msgs/msg/OccupancyGrid", True),
+    topics.AGENT_MARKERS: ("visualization_msgs/msg/MarkerArray", True),
+    topics.CLOCK: ("rosgraph_msgs/msg/Clock", False),
+}
+
+
+def message_class(msgtype: str):
+    """The Python class of ``pkg/msg/Name``."""
+    package, _, name = msgtype.split("/")
+    return getattr(importlib.import_module(f"{package}.msg"), name)
+
+
+def subscription_qos(latched: bool) -> QoSProfile:
+    if latched:
+        return topics.LATCHED
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=STREAM_DEPTH,
+                      reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
+
+
+def adapted_qos(offered: list[QoSProfile]) -> QoSProfile:
+    """What ``ros2 bag record`` does: reliable only if every publisher is, transient-local
+    only if every publisher is (otherwise some would not match)."""
+    reliable = all(p.reliability == ReliabilityPolicy.RELIABLE for p in offered)
+    latched = bool(offered) and all(p.durability == DurabilityPolicy.TRANSIENT_LOCAL for p in offered)
+    profile = subscription_qos(latched)
+    if not reliable:
+        profile = QoSProfile(history=profile.history, depth=profile.depth,
+                             reliability=ReliabilityPolicy.BEST_EFFORT, durability=profile.durability)
+    return profile
+
+
+def _qos_time(nanoseconds: int) -> QosTime:
+    return QosTime(nanoseconds // 1_000_000_000, nanoseconds % 1_000_000_000)
+
+
+def to_bag_qos(profile: QoSProfile) -> Qos:
+    """An rclpy QoS profile as rosbags stores it in the recording (same enum values as rmw)."""
+    return Qos(
+        history=QosHistory(int(profile.history)),
+        depth=profile.depth,
+        reliability=QosReliability(int(profile.reliability)),
+        durability=QosDurability(int(profile.durability)),
+        deadline=_qos_time(profile.deadline.nanoseconds),
+        lifespan=_qos_time(profile.lifespan.nanoseconds),
+        liveliness=QosLiveliness(int(profile.liveliness)),
+        liveliness_lease_duration=_qos_time(profile.liveliness_lease_duration.nanoseconds),
+        avoid_ros_namespace_conventions=profile.avoid_ros_namespace_conventions,
+    )
+
+
+def from_bag_qos(recorded: list[Qos]) -> QoSProfile:
+    """The QoS to republish a recorded topic with (its first recorded profile; a stream
+    profile when none was recorded)."""
+    if not recorded:
+        return subscription_qos(False)
+    q = recorded[0]
+    durable = q.durability == QosDurability.TRANSIENT_LOCAL
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST,
+        depth=max(q.depth, 1 if durable else STREAM_DEPTH),
+        reliability=(ReliabilityPolicy.BEST_EFFORT if q.reliability == QosReliability.BEST_EFFORT
+                     else ReliabilityPolicy.RELIABLE),
+        durability=DurabilityPolicy.TRANSIENT_LOCAL if durable else DurabilityPolicy.VOLATILE,
+    )
+
+
+@dataclass
+class RecorderOptions:
+    namespace: str = topics.DEFAULT_NAMESPACE
+    topics: tuple[str, ...] = ()  # absolute names; empty: the namespace and /clock
+    checkpoint_id: str = ""  # of the model the learned agents run (recorded with the run)
+    chunk_bytes: int = 256 * 1024
+    flush_seconds: float = 0.5
+
+
+class Recorder(Node):
+    """Node ``recorder`` in the namespace; writes to a :class:`BagWriter`."""
+
+    def __init__(self, writer: BagWriter, options: RecorderOptions):
+        super().__init__("recorder", namespace=options.namespace)
+        self.writer = writer
+        self.options = options
+        self.counts: Counter = Counter()
+        self.skipped: dict[str, str] = {}
+        self._recorded: dict[str, object] = {}
+        self._store = writer.typestore
+        run_info = {"package_version": package_version()}
+        if options.checkpoint_id:
+            run_info["checkpoint_id"] = options.checkpoint_id
+        writer.set_run_info(run_info)
+        for leaf, (msgtype, latched) in CONVENTIONAL_TOPICS.items():
+            name = topics.full_name(options.namespace, leaf)
+            if self._wanted(name):
+                self._subscribe(name, msgtype, subscription_qos(latched))
+        self._discover()
+        self.create_timer(DISCOVERY_PERIOD_S, self._discover)
+
+    def _wanted(self, name: str) -> bool:
+        if self.options.topics:
+            return name in self.options.topics
+        namespace = self.options.namespace.rstrip("/")
+        return name == topics.CLOCK or name.startswith(namespace + "/")
+
+    def _discover(self) -> None:
+        for name, types in self.get_topic_names_and_types():
+            if name in self._recorded or name in self.skipped or not self._wanted(name):
+                continue
+            offered = [info.qos_profile for info in self.get_publishers_info_by_topic(name)]
+            if not offered:
+                continue  # only subscribers so far: wait for a publisher to learn its QoS
+            self._subscribe(name, types[0], adapted_qos(offered))
+
+    def _subscribe(self, name: str, msgtype: str, profile: QoSProfile) -> None:
+        if not self.writer.knows_type(msgtype):
+            self.skipped[name] = f"unknown message type {msgtype}"
+            self.get_logger().warning(f"not recording {name}: {self.skipped[name]}")
+            return
+        try:
+            cls = message_class(msgtype)
+        except (ImportError, AttributeError, ValueError) as exc:
+            self.skipped[name] = f"cannot import {msgtype} ({exc})"
+            self.get_logger().warning(f"not recording {name}: {self.skipped[name]}")
+            return
+        self.writer.add_topic(name, msgtype, [to_bag_qos(profile)])
+        self._recorded[name] = self.create_subscription(
+            cls, name, lambda data, name=name, msgtype=msgtype: self._on_message(name, msgtype, data),
+            profile, raw=True,
+        )
+
+    def _on_message(self, topic: str, msgtype: str, data: bytes) -> None:
+        self.writer.write(topic, time.time_ns(), data)
+        self.counts[topic] += 1
+        if msgtype == SCENARIO_TYPE:
+            self._describe_run(data)
+
+    def _describe_run(self, data: bytes) -> None:
+        msg = self._store.deserialize_cdr(data, SCENARIO_TYPE)
+        self.writer.set_run_info({
+            "seed": str(msg.seed),
+            "scenario": msg.scenario_json,
+            "config_digest": msg.config_digest,
+            "policies": msg.policies,
+            "scenario_format_version": str(msg.format_version),
+        })
+
+
+def record(out: str | Path, options: RecorderOptions, domain_id: int | None = None,
+           duration_s: float | None = None, on_ready=None) -> dict:
+    """Record until SIGINT/SIGTERM (or ``duration_s``); returns counts per topic. The bag is
+    closed (summary and metadata.yaml written) on every exit but a SIGKILL."""
+    from .env import check_domain_id, ros_session
+
+    check_domain_id(domain_id)  # before anything is written
+    stop = []
+    writer = BagWriter(out, chunk_bytes=options.chunk_bytes, flush_seconds=options.flush_seconds)
+    try:
+        with ros_session(domain_id) as executor:
+            handlers = {s: signal.signal(s, lambda *_: stop.append(True)) for s in (signal.SIGINT, signal.SIGTERM)}
+            try:
+                node = Recorder(writer, options)
+                executor.add_node(node)
+                if on_ready is not None:
+                    on_ready(node)
+                deadline = None if duration_s is None else time.monotonic() + duration_s
+                while not stop and (deadline is None or time.monotonic() < deadline):
+                    executor.spin_once(timeout_sec=0.1)
+                    writer.flush_if_due()
+                counts, skipped = dict(node.counts), dict(node.skipped)
+            finally:
+                for sig, handler in handlers.items():
+                    signal.signal(sig, handler)
+    finally:
+        writer.close()
+    return {"recording": str(out), "file": str(writer.mcap_path), "messages": sum(counts.values()),
+            "topics": counts, "skipped": skipped}

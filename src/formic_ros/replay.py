@@ -1,0 +1,229 @@
+"""Replaying recordings: re-simulate and verify, render, or republish.
+
+The core is deterministic, so the recorded scenario and the actions the world applied
+(``applied_actions``, 255 = none arrived) reproduce every state: verification re-simulates
+with :class:`formic_world.World` and compares each recorded ``WorldState`` (digest, score,
+agent positions) bit for bit. Reading and re-simulating need no rclpy (messages are decoded
+with the recording's own schemas); only republishing does.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections import deque
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from formic_world import NO_ACTION, Scenario, World
+
+from .bag import Recording
+
+NO_ACTION_WIRE = 255  # ActionBatch value for "no action arrived" (formic_ros.qos.NO_ACTION_WIRE)
+SCENARIO_TYPE = "formic_interfaces/msg/ScenarioDescription"
+STATE_TYPE = "formic_interfaces/msg/WorldState"
+ACTIONS_TYPE = "formic_interfaces/msg/ActionBatch"
+APPLIED_SUFFIX = "/applied_actions"
+
+
+@dataclass
+class RecordedState:
+    digest: str
+    score: float
+    rows: np.ndarray
+    cols: np.ndarray
+
+
+@dataclass
+class RecordedEpisode:
+    """One scenario and what the world applied and reached, keyed by step."""
+
+    scenario: Scenario | None = None
+    policies: str = ""
+    actions: dict[int, np.ndarray] = field(default_factory=dict)  # step -> rows (agent ids, actions), -1 = none
+    states: dict[int, RecordedState] = field(default_factory=dict)  # world.t -> state
+
+
+def read_episodes(recording: Recording) -> list[RecordedEpisode]:
+    """The episodes in a recording, in order (a new scenario description starts one)."""
+    store = recording.typestore()
+    wanted = [t for t, info in recording.topics.items()
+              if info.msgtype in (SCENARIO_TYPE, STATE_TYPE)
+              or (info.msgtype == ACTIONS_TYPE and t.endswith(APPLIED_SUFFIX))]
+    episodes: list[RecordedEpisode] = []
+    for message in recording.messages(wanted):
+        msg = store.deserialize_cdr(message.data, message.msgtype)
+        if message.msgtype == SCENARIO_TYPE:
+            if not episodes or episodes[-1].scenario is not None:
+                episodes.append(RecordedEpisode())
+            episodes[-1].scenario = Scenario.from_json(msg.scenario_json)
+            episodes[-1].policies = msg.policies
+            continue
+        if not episodes:
+            episodes.append(RecordedEpisode())
+        episode = episodes[-1]
+        if message.msgtype == STATE_TYPE:
+            episode.states[int(msg.step)] = RecordedState(
+                msg.state_digest, float(msg.score), np.asarray(msg.agent_rows), np.asarray(msg.agent_cols)
+            )
+        else:
+            wire = np.asarray(msg.actions, dtype=np.int64)
+            episode.actions[int(msg.step)] = np.stack([np.asarray(msg.agent_ids, dtype=np.int64),
+                                                       np.where(wire == NO_ACTION_WIRE, NO_ACTION, wire)])
+    return episodes
+
+
+def _actions_for(episode: RecordedEpisode, step: int, n_agents: int) -> np.ndarray:
+    ids, values = episode.actions[step]
+    actions = np.full(n_agents, NO_ACTION, dtype=np.int64)
+    actions[ids] = values
+    return actions
+
+
+def resimulate(episode: RecordedEpisode) -> Iterator[World]:
+    """The world at its start and after every step whose actions were recorded (the same
+    object, advanced in place), until the first step with no recorded actions."""
+    if episode.scenario is None:
+        raise ValueError("the recording has no scenario description (/formic/scenario)")
+    world = World(episode.scenario)
+    yield world
+    n = episode.scenario.config.n_agents
+    while world.t in episode.actions and not world.done:
+        world.step(_actions_for(episode, world.t, n))
+        yield world
+
+
+def _difference(world: World, state: RecordedState) -> str | None:
+    """The first field where a recorded state differs from the re-simulated world."""
+    if state.digest != world.state_digest():
+        return f"state_digest recorded {state.digest}, re-simulated {world.state_digest()}"
+    if state.score != world.score:
+        return f"score recorded {state.score!r}, re-simulated {world.score!r}"
+    if not (np.array_equal(state.rows, world.pos[:, 0]) and np.array_equal(state.cols, world.pos[:, 1])):
+        return "agent positions differ"
+    return None
+
+
+@dataclass
+class VerifyReport:
+    ok: bool
+    episodes: int
+    states_checked: int
+    steps_simulated: int
+    reading: str  # how the recording was read
+    problems: list[str] = field(default_factory=list)
+
+    def summary(self) -> str:
+        verdict = "OK" if self.ok else "FAILED"
+        text = (f"{verdict}: {self.states_checked} recorded states match the re-simulation bit for bit "
+                f"({self.steps_simulated} steps, {self.episodes} episode(s); {self.reading})")
+        if not self.ok:
+            text = f"{verdict}: " + "; ".join(self.problems) + f" ({self.reading})"
+        elif self.problems:
+            text += "; note: " + "; ".join(self.problems)
+        return text
+
+    def to_dict(self) -> dict:
+        return dict(ok=self.ok, episodes=self.episodes, states_checked=self.states_checked,
+                    steps_simulated=self.steps_simulated, reading=self.reading, problems=self.problems)
+
+
+def verify_recording(path: str | os.PathLike) -> VerifyReport:
+    """Re-simulate every episode from its scenario and applied actions; every recorded state
+    must match. States that cannot be reached (their actions are missing) fail a complete
+    recording, and are only noted for one cut short (its tail is lost by definition)."""
+    recording = Recording(path)
+    episodes = read_episodes(recording)
+    report = VerifyReport(True, len(episodes), 0, 0, recording.describe())
+    if not episodes:
+        report.ok = False
+        report.problems.append("no scenario, state or applied actions in the recording")
+    for number, episode in enumerate(episodes):
+        label = f"episode {number}" if len(episodes) > 1 else "episode"
+        try:
+            worlds = resimulate(episode)
+            for world in worlds:
+                report.steps_simulated += int(world.t > 0)
+                state = episode.states.get(world.t)
+                if state is None:
+                    continue
+                difference = _difference(world, state)
+                report.states_checked += 1
+                if difference:
+                    report.ok = False
+                    report.problems.append(f"{label}: mismatch at step {world.t}: {difference}")
+                    break
+            else:
+                unchecked = sorted(s for s in episode.states if s > world.t)
+                if unchecked:
+                    what = (f"{label}: {len(unchecked)} recorded states after step {world.t} cannot be "
+                            f"re-simulated (no applied actions for step {world.t})")
+                    report.problems.append(what)
+                    report.ok = report.ok and recording.cut_short
+        except ValueError as exc:
+            report.ok = False
+            report.problems.append(f"{label}: {exc}")
+    if report.ok and report.states_checked == 0:
+        report.ok = False
+        report.problems.append("no recorded state could be checked")
+    return report
+
+
+def render_recording(path: str | os.PathLike, out: str | os.PathLike, scale: int = 4, fps: float = 20) -> int:
+    """Rebuild the world states of a recording by re-simulation and write them as a GIF or
+    MP4 (or the last state as a PNG). Returns the number of frames."""
+    from formic_world.render import render_frame, render_frames_to_file, save_png
+
+    episodes = [e for e in read_episodes(Recording(path)) if e.scenario is not None]
+    if not episodes:
+        raise ValueError(f"{path}: no scenario description recorded; nothing to render")
+    frames = (render_frame(world, scale=scale, caption=True) for e in episodes for world in resimulate(e))
+    out = Path(out)
+    if out.suffix.lower() == ".png":
+        save_png(deque(frames, maxlen=1)[0], out)
+        return 1
+    return render_frames_to_file(frames, out, fps=fps)
+
+
+def republish(path: str | os.PathLike, rate: float = 1.0, domain_id: int | None = None,
+              topics: tuple[str, ...] = (), wait_s: float = 1.0, log=print) -> dict:
+    """Publish the recorded messages again (their CDR bytes, with their recorded types and
+    QoS) on the recorded clock: a message recorded ``d`` seconds after the first is sent
+    ``d / rate`` seconds after the start (``rate`` 0: as fast as possible). ``/clock`` is
+    among them, so nodes with ``use_sim_time`` follow the recorded sim time. Playing starts
+    once every topic has a subscriber, or after ``wait_s``."""
+    from rclpy.duration import Duration
+    from rclpy.node import Node
+
+    from .env import ros_session
+    from .recorder import from_bag_qos, message_class
+
+    recording = Recording(path)
+    if recording.streamed:
+        log(f"note: {recording.describe()}")
+    chosen = {t: info for t, info in recording.topics.items() if not topics or t in topics}
+    sent = dict.fromkeys(chosen, 0)
+    with ros_session(domain_id) as executor:
+        node = Node("replay")
+        executor.add_node(node)
+        publishers = {t: node.create_publisher(message_class(info.msgtype), t, from_bag_qos(info.qos))
+                      for t, info in chosen.items()}
+        wait_until = time.monotonic() + wait_s
+        while time.monotonic() < wait_until and any(p.get_subscription_count() == 0 for p in publishers.values()):
+            executor.spin_once(timeout_sec=0.05)
+        start, first = time.monotonic(), None
+        for message in recording.messages(chosen):
+            first = message.log_time if first is None else first
+            if rate > 0:
+                delay = start + (message.log_time - first) / 1e9 / rate - time.monotonic()
+                if delay > 0:
+                    time.sleep(delay)
+            publishers[message.topic].publish(message.data)
+            sent[message.topic] += 1
+        for publisher in publishers.values():
+            publisher.wait_for_all_acked(Duration(seconds=2.0))
+    return {"recording": str(path), "messages": sum(sent.values()), "topics": sent,
+            "seconds": time.monotonic() - start}

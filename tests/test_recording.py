@@ -1,0 +1,371 @@
+"""Recording and replay: a real recorder process records a real publisher process; third-party
+readers read the result; a recorder killed with SIGKILL leaves a file that streams and repairs;
+replay verifies a good recording bit for bit and rejects a tampered one; render and republish.
+
+One ROS session (module fixture) feeds two recorders at once: one stopped with SIGINT, one
+killed with SIGKILL while the publisher is still stepping.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import select
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("rclpy")
+pytest.importorskip("formic_interfaces.msg")
+
+from formic_ros.bag import KEPT_SUFFIX, BagWriter, Recording, repair_recording  # noqa: E402
+from formic_ros.replay import read_episodes, render_recording, resimulate, verify_recording  # noqa: E402
+
+pytestmark = pytest.mark.filterwarnings("ignore:module 'sre_:DeprecationWarning")
+
+ROOT = Path(__file__).resolve().parents[1]
+PYTHON = sys.executable
+STEPS = 120
+DISCOVERED_TOPIC = "/formic/agent_0/action"  # not a world topic: the recorder must find it in the graph
+DOMAIN_ID = 150 + os.getpid() % 60
+
+# A stand-in for the world node: a real World episode on the conventional topics.
+PUBLISHER = r'''
+import array, json, sys, time
+import numpy as np
+import rclpy
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from builtin_interfaces.msg import Time
+from formic_interfaces.msg import ActionBatch, AgentAction, ScenarioDescription, WorldState
+from rosgraph_msgs.msg import Clock
+from std_msgs.msg import Float64
+from formic_world import World, WorldConfig, generate_scenario
+
+steps, rate_hz, recorders = int(sys.argv[1]), float(sys.argv[2]), int(sys.argv[3])
+latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+stream = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
+rclpy.init()
+node = Node("world", namespace="/formic")
+pubs = {
+    "scenario": node.create_publisher(ScenarioDescription, "scenario", latched),
+    "state": node.create_publisher(WorldState, "state", stream),
+    "applied_actions": node.create_publisher(ActionBatch, "applied_actions", stream),
+    "score": node.create_publisher(Float64, "score", stream),
+    "clock": node.create_publisher(Clock, "/clock", stream),
+    "agent_action": node.create_publisher(AgentAction, "agent_0/action", stream),
+}
+scenario = generate_scenario(WorldConfig(height=16, width=16, n_agents=4, episode_steps=steps), 3)
+world = World(scenario)
+deadline = time.monotonic() + 20
+while any(p.get_subscription_count() < recorders for p in pubs.values()) and time.monotonic() < deadline:
+    time.sleep(0.02)
+
+def arr(code, values, dtype):
+    out = array.array(code)
+    out.frombytes(np.ascontiguousarray(values, dtype=dtype).tobytes())
+    return out
+
+def state():
+    w = world
+    return WorldState(step=w.t, height=16, width=16, score=w.score, grid=w.grid.astype(np.uint8).tobytes(),
+                      pheromone=arr("f", w.visible_pheromone(), np.float32),
+                      agent_rows=arr("i", w.pos[:, 0], np.int32), agent_cols=arr("i", w.pos[:, 1], np.int32),
+                      agent_loads=arr("f", w.loads, np.float32), agent_queues=arr("i", w.queue_of, np.int32),
+                      state_digest=w.state_digest())
+
+counts = dict.fromkeys(pubs, 0)
+def publish(name, msg):
+    pubs[name].publish(msg); counts[name] += 1
+
+publish("scenario", ScenarioDescription(format_version=1, seed=3, config_digest=scenario.config.digest(),
+                                         scenario_json=scenario.to_json(), policies="random:0-3"))
+publish("state", state())
+rng = np.random.default_rng(7)
+print("stepping", flush=True)
+for t in range(steps):
+    mask = world.action_mask()
+    actions = np.array([rng.choice(np.flatnonzero(m)) if m.any() else 4 for m in mask])
+    if t % 5 == 0:
+        actions[1] = -1  # agent 1's action "did not arrive": NO_ACTION, 255 on the wire
+    world.step(actions)
+    publish("agent_action", AgentAction(step=t, agent_id=0, action=int(actions[0])))
+    publish("applied_actions", ActionBatch(step=t, agent_ids=arr("I", np.arange(4), np.uint32),
+                                           actions=np.where(actions < 0, 255, actions).astype(np.uint8).tobytes()))
+    publish("state", state())
+    publish("score", Float64(data=world.score))
+    nanos = int(world.t * 0.1 * 1e9)
+    publish("clock", Clock(clock=Time(sec=nanos // 10**9, nanosec=nanos % 10**9)))
+    time.sleep(1 / rate_hz)
+time.sleep(1.0)  # delivery to the live recorder (acks would wait for the killed one too)
+print(json.dumps({"counts": counts, "digest": world.state_digest(), "scenario": scenario.to_json()}), flush=True)
+node.destroy_node()
+rclpy.shutdown()
+'''
+
+
+def ros_env() -> dict[str, str]:
+    env = dict(os.environ, ROS_DOMAIN_ID=str(DOMAIN_ID), FASTDDS_BUILTIN_TRANSPORTS="UDPv4",
+               ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", PYTHONUNBUFFERED="1")
+    return env
+
+
+def spawn(args: list[str], **kw) -> subprocess.Popen:
+    return subprocess.Popen(args, env=ros_env(), cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, start_new_session=True, **kw)
+
+
+def reap(proc: subprocess.Popen, timeout: float) -> tuple[str, str]:
+    """Wait for a process (SIGKILL after ``timeout``); returns its output."""
+    try:
+        return proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        return proc.communicate()
+
+
+def formic(*args: str, timeout: float = 60) -> subprocess.CompletedProcess:
+    return subprocess.run([PYTHON, "-m", "formic_cli.main", *args], env=ros_env(), cwd=ROOT,
+                          capture_output=True, text=True, timeout=timeout)
+
+
+def digest_of(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory):
+    """Two recorders (one to be stopped, one to be killed) record one publisher's episode."""
+    tmp = tmp_path_factory.mktemp("recording")
+    good, killed = tmp / "good", tmp / "killed"
+    script = tmp / "publisher.py"
+    script.write_text(PUBLISHER)
+    recorder = [PYTHON, "-m", "formic_cli.main", "record", "--chunk-kb", "16", "--json", "--out"]
+    procs = [spawn(recorder + [str(good)]), spawn(recorder + [str(killed)])]
+    publisher = spawn([PYTHON, str(script), str(STEPS), "100", "2"])
+    try:
+        ready, _, _ = select.select([publisher.stdout], [], [], 40)
+        assert ready and publisher.stdout.readline().strip() == "stepping", reap(publisher, 5)
+        time.sleep(0.7)
+        os.killpg(procs[1].pid, signal.SIGKILL)  # mid-episode: ~70 of 120 steps published
+        reap(procs[1], 5)
+        out, err = reap(publisher, 30)
+        assert publisher.returncode == 0, err
+        published = json.loads(out.strip().splitlines()[-1])
+        time.sleep(0.3)
+        procs[0].send_signal(signal.SIGINT)
+        rec_out, rec_err = reap(procs[0], 15)
+        assert procs[0].returncode == 0, rec_err
+    finally:
+        for proc in (*procs, publisher):
+            if proc.poll() is None:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.communicate()
+    return {"good": good, "killed": killed, "published": published, "recorder": json.loads(rec_out), "tmp": tmp}
+
+
+def test_recorder_writes_a_complete_rosbag2_recording(session):
+    good, published = session["good"], session["published"]
+    assert (good / "metadata.yaml").is_file() and (good / "good.mcap").is_file()
+    recording = Recording(good)
+    assert recording.complete, recording.describe()
+    expected = {f"/formic/{k}": v for k, v in published["counts"].items() if k not in ("clock", "agent_action")}
+    expected |= {"/clock": published["counts"]["clock"], DISCOVERED_TOPIC: published["counts"]["agent_action"]}
+    got = {t: i.count for t, i in recording.topics.items() if t in expected}
+    assert got == expected
+    assert session["recorder"]["topics"] == {t: c for t, c in expected.items()}
+    info = recording.run_info
+    assert info["seed"] == "3" and info["policies"] == "random:0-3"
+    assert info["scenario"] == published["scenario"]
+    assert json.loads(info["scenario"])["seed"] == 3 and len(info["config_digest"]) == 16
+    assert info["package_version"]
+
+
+def test_third_party_readers_decode_the_recording(session):
+    """mcap_ros2 (in a process that never imports rclpy) and rosbags read every message."""
+    good, published = session["good"], session["published"]
+    script = (
+        "import json, sys\n"
+        "from mcap.reader import make_reader\n"
+        "from mcap_ros2.decoder import DecoderFactory\n"
+        "counts, last = {}, None\n"
+        f"with open({str(good / 'good.mcap')!r}, 'rb') as f:\n"
+        "    reader = make_reader(f, decoder_factories=[DecoderFactory()])\n"
+        "    assert reader.get_header().profile == 'ros2'\n"
+        "    for schema, channel, message, decoded in reader.iter_decoded_messages():\n"
+        "        assert schema.encoding == 'ros2msg' and channel.message_encoding == 'cdr'\n"
+        "        counts[channel.topic] = counts.get(channel.topic, 0) + 1\n"
+        "        if channel.topic == '/formic/state':\n"
+        "            last = decoded.state_digest\n"
+        "assert 'rclpy' not in sys.modules\n"
+        "print(json.dumps({'counts': counts, 'last': last}))\n"
+    )
+    done = subprocess.run([PYTHON, "-c", script], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    result = json.loads(done.stdout)
+    assert result["counts"]["/formic/state"] == published["counts"]["state"]
+    assert result["last"] == published["digest"]
+
+    from rosbags.rosbag2 import Reader
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+    store = get_typestore(Stores.EMPTY)
+    with Reader(good) as reader:
+        for conn in reader.connections:
+            store.register(get_types_from_msg(conn.msgdef.data, conn.msgtype))
+        states = [store.deserialize_cdr(raw, conn.msgtype) for conn, _, raw in reader.messages()
+                  if conn.topic == "/formic/state"]
+        assert reader.message_count == sum(published["counts"].values())
+    assert states[-1].state_digest == published["digest"]
+    assert states[0].step == 0 and states[-1].step == STEPS
+
+
+def test_killed_recorder_leaves_a_streamable_file_that_repairs(session):
+    killed = session["killed"]
+    mcap = killed / "killed.mcap"
+    assert not (killed / "metadata.yaml").exists()
+    recording = Recording(killed)
+    assert recording.streamed and "no usable summary" in recording.problem
+    states = recording.topics["/formic/state"].count
+    assert 5 < states < STEPS + 1, recording.describe()
+    assert recording.run_info["seed"] == "3"  # the run description survives the kill
+    before = digest_of(mcap)
+    done = formic("replay", str(killed), "--repair", "--json")
+    assert done.returncode == 0, done.stderr
+    assert json.loads(done.stdout)["repaired"] is True
+    kept = killed / ("killed.mcap" + KEPT_SUFFIX)
+    assert digest_of(kept) == before  # the original bytes are kept
+    repaired = Recording(killed)
+    assert repaired.complete, repaired.describe()
+    assert repaired.topics["/formic/state"].count == states
+    assert repaired.run_info["seed"] == "3"
+    from rosbags.rosbag2 import Reader
+
+    with Reader(killed) as reader:
+        assert reader.message_count == recording.message_count
+    report = verify_recording(killed)
+    assert report.ok and report.states_checked >= states - 1, report.summary()
+    assert not repair_recording(killed).repaired  # a second repair has nothing to do
+
+
+def test_replay_verify_accepts_the_recording(session):
+    done = formic("replay", str(session["good"]), "--verify")
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert done.stdout.startswith("OK") and f"{STEPS + 1} recorded states" in done.stdout
+
+
+def _tampered_copy(source: Path, target: Path, change) -> None:
+    """Rewrite a recording with ``change(topic, decoded, index)`` applied to its messages."""
+    recording = Recording(source)
+    store = recording.typestore()
+    with BagWriter(target, typestore=store) as writer:
+        for topic, info in recording.topics.items():
+            writer.add_topic(topic, info.msgtype, info.qos)
+        seen: dict[str, int] = {}
+        for m in recording.messages():
+            index = seen[m.topic] = seen.get(m.topic, -1) + 1
+            msg = store.deserialize_cdr(m.data, m.msgtype)
+            data = m.data
+            if change(m.topic, msg, index):
+                data = bytes(store.serialize_cdr(msg, m.msgtype))
+            writer.write(m.topic, m.log_time, data)
+        writer.set_run_info(recording.run_info)
+
+
+def test_replay_verify_detects_a_tampered_action(session):
+    episode = read_episodes(Recording(session["good"]))[0]
+    # an agent that was free and moved at step t: withholding its action changes the state
+    worlds = resimulate(episode)
+    first = next(worlds)
+    pos, queued, moves = first.pos.copy(), first.queued.copy(), []
+    for world in worlds:
+        moves += [(world.t - 1, a) for a in (0, 2, 3) if not queued[a] and tuple(pos[a]) != tuple(world.pos[a])]
+        pos, queued = world.pos.copy(), world.queued.copy()
+    step, agent = moves[len(moves) // 2]
+
+    def change(topic, msg, index):
+        if topic == "/formic/applied_actions" and msg.step == step:
+            msg.actions = msg.actions.copy()
+            msg.actions[agent] = 255
+            return True
+        return False
+
+    target = session["tmp"] / "tampered-action"
+    _tampered_copy(session["good"], target, change)
+    done = formic("replay", str(target), "--verify")
+    assert done.returncode == 1
+    assert done.stdout.startswith("FAILED") and f"mismatch at step {step + 1}" in done.stdout
+
+
+def test_replay_verify_detects_a_tampered_state(session):
+    def change(topic, msg, index):
+        if topic == "/formic/state" and index == 40:
+            msg.score += 1.0
+            return True
+        return False
+
+    target = session["tmp"] / "tampered-state"
+    _tampered_copy(session["good"], target, change)
+    report = verify_recording(target)
+    assert not report.ok and "mismatch at step 40: score" in report.summary()
+
+
+def test_render_recording_writes_a_gif(session):
+    from PIL import Image
+
+    out = session["tmp"] / "episode.gif"
+    frames = render_recording(session["good"], out, scale=2, fps=20)
+    assert frames == STEPS + 1
+    with Image.open(out) as gif:
+        assert gif.n_frames > 1 and gif.size == (32, 32 + 14)
+
+
+def test_republish_plays_the_topics_back(session, monkeypatch):
+    """`formic replay --republish` publishes the recorded CDR; a subscriber decodes it."""
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+    from formic_interfaces.msg import ScenarioDescription, WorldState
+    from formic_ros.recorder import subscription_qos
+
+    for key in ("ROS_DOMAIN_ID", "FASTDDS_BUILTIN_TRANSPORTS", "ROS_AUTOMATIC_DISCOVERY_RANGE"):
+        monkeypatch.setenv(key, ros_env()[key])
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=DOMAIN_ID)
+    try:
+        node = rclpy.create_node("probe", context=context)
+        executor = SingleThreadedExecutor(context=context)
+        executor.add_node(node)
+        digests, scenarios = [], []
+        node.create_subscription(WorldState, "/formic/state", lambda m: digests.append(m.state_digest),
+                                 QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE))
+        node.create_subscription(ScenarioDescription, "/formic/scenario", scenarios.append, subscription_qos(True))
+        player = spawn([PYTHON, "-m", "formic_cli.main", "replay", str(session["good"]), "--republish",
+                        "--rate", "0", "--wait", "30", "--topics", "/formic/state,/formic/scenario"])
+        deadline = time.monotonic() + 40
+        while len(digests) < STEPS + 1 and time.monotonic() < deadline and player.poll() is None:
+            executor.spin_once(timeout_sec=0.1)
+        for _ in range(20):  # what was sent before the player exited
+            executor.spin_once(timeout_sec=0.05)
+        out, err = reap(player, 15)
+        assert player.returncode == 0, err
+    finally:
+        rclpy.shutdown(context=context)
+    assert len(digests) == STEPS + 1 and digests[-1] == session["published"]["digest"]
+    assert scenarios and scenarios[0].seed == 3
+    assert "republished" in out
+
+
+def test_foxglove_layout_shows_map_markers_and_score():
+    layout = json.loads((ROOT / "foxglove" / "formic_layout.json").read_text())
+    text = json.dumps(layout["configById"])
+    for topic in ("/formic/map", "/formic/agent_markers", "/formic/score"):
+        assert topic in text
+    kinds = {key.split("!")[0] for key in layout["configById"]}
+    assert {"3D", "Plot"} <= kinds
