@@ -1,0 +1,75 @@
+#!/usr/bin/env python3
+"""Drive one ForMIC agent from your own ROS 2 node.
+
+This is how a robot's policy node replaces a simulated agent: start the system with that agent
+left out (``formic run --external 2``), then run a node named ``agent_2`` in the ``/formic``
+namespace that answers every observation on ``/formic/agent_2/observation`` with an action on
+``/formic/agent_2/action`` carrying the same step. The world waits for it like for any other
+agent (and gives it NO_ACTION for a step it misses).
+
+    python examples/external_agent.py --agent 2
+
+Needs only rclpy and formic_interfaces. The decision rule here is deliberately simple: join a
+queue when that is possible, otherwise take a random valid move.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import random
+
+JOIN = 4  # actions: 0 north, 1 east, 2 south, 3 west, 4 join
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--agent", type=int, required=True, help="agent id to drive")
+    parser.add_argument("--namespace", default="/formic")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the random moves")
+    args = parser.parse_args()
+    # Discover only on this machine, like the rest of the system (unset to reach other hosts).
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+
+    import rclpy
+    from formic_interfaces.msg import AgentAction, AgentObservation
+    from rclpy.node import Node
+
+    class ExternalAgent(Node):
+        def __init__(self) -> None:
+            super().__init__(f"agent_{args.agent}", namespace=args.namespace)
+            self.rng = random.Random(args.seed)
+            self.done = False
+            self.last: AgentAction | None = None
+            # Reliable, depth 10: the QoS of the world's per-agent topics.
+            self.publisher = self.create_publisher(AgentAction, "~/action", 10)
+            self.create_subscription(AgentObservation, "~/observation", self.on_observation, 10)
+
+        def on_observation(self, obs: AgentObservation) -> None:
+            if obs.done:
+                self.get_logger().info(f"episode over at step {obs.step}")
+                self.done = True
+                return
+            if self.last is not None and self.last.step == obs.step:
+                self.publisher.publish(self.last)  # the world re-sent this step: same answer
+                return
+            valid = [a for a in range(5) if obs.action_mask[a]]
+            action = JOIN if JOIN in valid else self.rng.choice(valid or [0])
+            self.last = AgentAction(step=obs.step, agent_id=args.agent, action=action)
+            self.publisher.publish(self.last)
+
+    rclpy.init()
+    node = ExternalAgent()
+    node.get_logger().info(f"driving agent {args.agent}")
+    try:
+        while rclpy.ok() and not node.done:
+            rclpy.spin_once(node, timeout_sec=0.2)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,229 @@
+"""ROS commands: ``formic run`` (the whole system), ``formic world | agents | planner`` (one node
+each, for running nodes on several machines) and ``formic bench ros``. Registered by
+``formic_cli.main`` when this module imports (it needs rclpy and formic_interfaces only
+inside the commands)."""
+
+from __future__ import annotations
+
+import json
+import signal
+import sys
+
+import click
+
+from .options import world_config_from, world_options
+
+NAMESPACE_HELP = "ROS namespace of the ForMIC topics and nodes."
+DOMAIN_HELP = "ROS_DOMAIN_ID for this run (default: the environment's, else 0)."
+DEADLINE_HELP = "Lockstep: how long a step waits for the last action."
+
+
+def _echo_json(obj: dict) -> None:
+    click.echo(json.dumps(obj, default=float))
+
+
+def _print_ros_summary(summary: dict) -> None:
+    from .summary import print_episode_summary
+
+    print_episode_summary(summary)
+    rejected = summary.get("rejected_actions", {})
+    click.echo(
+        f"ROS: {summary['mode']}, {summary['steps_per_s']:.0f} steps/s after a {summary['startup_s']:.1f} s start; "
+        f"missed actions {summary['missed_actions']}; rejected actions "
+        + (", ".join(f"{k} {v}" for k, v in rejected.items()) if rejected else "0")
+    )
+    click.echo(f"state digest {summary['state_digest']}")
+
+
+def _load_scenario(scenario_file: str | None, world_kw: dict):
+    from formic_world import Scenario, generate_scenario
+
+    if scenario_file:
+        return Scenario.load(scenario_file)
+    config, seed = world_config_from(world_kw)
+    return generate_scenario(config, seed)
+
+
+def _parse_external(text: str | None) -> tuple[int, ...]:
+    from formic_ros.agent_host import parse_ids
+
+    if not text:
+        return ()
+    try:
+        return tuple(parse_ids(text))
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="--external") from exc
+
+
+def _sigterm_as_interrupt() -> None:
+    def handler(signum, frame):
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, handler)
+
+
+# ----------------------------------------------------------------------------------- run
+@click.command()
+@world_options
+@click.option("--policy", default="formic", show_default=True,
+              help="Policy for all agents, or a mix such as formic:0-31,csaf11:32-63 (planner: the planner node).")
+@click.option("--model", type=click.Path(dir_okay=False), help="Checkpoint for the formic policy.")
+@click.option("--greedy", is_flag=True, help="Learned agents take the most likely action.")
+@click.option("--scenario", "scenario_file", type=click.Path(exists=True, dir_okay=False),
+              help="Run a stored scenario (its configuration wins over world options).")
+@click.option("--hosts", default=1, show_default=True, help="Agent host processes to split the team over.")
+@click.option("--transport", type=click.Choice(["per-agent", "batched"]), default="per-agent", show_default=True,
+              help="One node and topic pair per agent, or one batched topic pair per host.")
+@click.option("--external", help="Agents driven by your own node on their per-agent topics, e.g. 5 or 0-3.")
+@click.option("--record", type=click.Path(file_okay=False), help="Record every topic to this rosbag2 (MCAP) directory.")
+@click.option("--namespace", default="/formic", show_default=True, help=NAMESPACE_HELP)
+@click.option("--domain-id", type=int, help=DOMAIN_HELP)
+@click.option("--deadline-ms", default=1000.0, show_default=True, help=DEADLINE_HELP)
+@click.option("--startup-timeout", default=60.0, show_default=True, help="Seconds step 0 waits for every agent.")
+@click.option("--rate", type=float, help="Free-running: steps per second, not waiting for agents.")
+@click.option("--viewer-every", default=10, show_default=True, help="Publish map and markers every k steps (0: never).")
+@click.option("--log-dir", type=click.Path(file_okay=False), help="Write each process's log here instead of stderr.")
+@click.option("--timeout", type=float, help="Give up after this many seconds.")
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
+def run(policy, model, greedy, scenario_file, hosts, transport, external, record, namespace, domain_id,
+        deadline_ms, startup_timeout, rate, viewer_every, log_dir, timeout, as_json, **world_kw) -> None:
+    """The main job: world, agent hosts (or the planner) and recorder as separate ROS processes."""
+    from formic_ros.launcher import RunOptions, launch
+
+    _sigterm_as_interrupt()
+    scenario = _load_scenario(scenario_file, world_kw)
+    options = RunOptions(
+        scenario=scenario, policy=policy, model=model, greedy=greedy, hosts=hosts, transport=transport,
+        external=_parse_external(external), record=record, namespace=namespace, domain_id=domain_id,
+        deadline_ms=deadline_ms, startup_timeout_s=startup_timeout, rate_hz=rate, viewer_every=viewer_every,
+        progress=not as_json and sys.stderr.isatty(), log_dir=log_dir, timeout_s=timeout,
+    )
+    try:
+        summary = launch(options)
+    except KeyboardInterrupt:
+        click.echo("interrupted: every process stopped", err=True)
+        sys.exit(130)
+    except (RuntimeError, ValueError, FileNotFoundError) as exc:
+        raise click.ClickException(str(exc)) from exc
+    if as_json:
+        _echo_json(summary)
+    else:
+        _print_ros_summary(summary)
+        click.echo(f"{summary['hosts']} host process(es), {summary['transport']} transport"
+                   + (f"; recording in {summary['recording']}" if "recording" in summary else ""))
+
+
+# --------------------------------------------------------------------------------- world
+@click.command()
+@world_options
+@click.option("--scenario", "scenario_file", type=click.Path(exists=True, dir_okay=False),
+              help="Serve a stored scenario (its configuration wins over world options).")
+@click.option("--policy-label", default="", help="Which policies drive the team (recorded in the scenario message).")
+@click.option("--namespace", default="/formic", show_default=True, help=NAMESPACE_HELP)
+@click.option("--domain-id", type=int, help=DOMAIN_HELP)
+@click.option("--deadline-ms", default=1000.0, show_default=True, help=DEADLINE_HELP)
+@click.option("--startup-timeout", default=60.0, show_default=True, help="Seconds step 0 waits for every agent.")
+@click.option("--rate", type=float, help="Free-running: steps per second, not waiting for agents.")
+@click.option("--viewer-every", default=10, show_default=True, help="Publish map and markers every k steps (0: never).")
+@click.option("--dt", default=0.1, show_default=True, help="Simulated seconds per step (/clock).")
+@click.option("--training-masks", is_flag=True, help="Fill the training-filter masks of ObservationBatch.")
+@click.option("--require-subscriber", "require", multiple=True,
+              type=click.Choice(["state", "applied_actions", "observations", "summary", "scenario", "score"]),
+              help="Do not start before this topic has a subscriber (e.g. a recorder); repeatable.")
+@click.option("--stay", is_flag=True, help="Keep serving the latched scenario and summary after the episode.")
+@click.option("--progress", is_flag=True, help="Show a progress bar on stderr.")
+@click.option("--json", "as_json", is_flag=True, help="Print the summary as one JSON line.")
+def world(scenario_file, policy_label, namespace, domain_id, deadline_ms, startup_timeout, rate, viewer_every,
+          dt, training_masks, require, stay, progress, as_json, **world_kw) -> None:
+    """The world node: owns the simulation and steps it with the agents over ROS."""
+    from formic_ros.world_node import WorldNodeOptions, serve_world
+
+    scenario = _load_scenario(scenario_file, world_kw)
+    options = WorldNodeOptions(
+        namespace=namespace, deadline_s=deadline_ms / 1e3, startup_timeout_s=startup_timeout, rate_hz=rate,
+        viewer_every=viewer_every, dt=dt, policy_label=policy_label, training_masks=training_masks,
+        require_subscribers=tuple(require), progress=progress,
+    )
+    try:
+        serve_world(scenario, options, domain_id=domain_id,
+                    on_summary=_echo_json if as_json else _print_ros_summary, stay=stay)
+    except KeyboardInterrupt:
+        sys.exit(130)
+
+
+# -------------------------------------------------------------------------------- agents
+@click.command()
+@click.option("--ids", required=True, help="Agents this host drives, e.g. 0-31 or 0-3,8-11.")
+@click.option("--policy", default="formic", show_default=True,
+              help="Policy, or a team spec with global ids such as formic:0-15,csaf11:16-31.")
+@click.option("--model", type=click.Path(dir_okay=False), help="Checkpoint for the formic policy.")
+@click.option("--greedy", is_flag=True, help="Learned agents take the most likely action.")
+@click.option("--transport", type=click.Choice(["per-agent", "batched"]), default="per-agent", show_default=True)
+@click.option("--namespace", default="/formic", show_default=True, help=NAMESPACE_HELP)
+@click.option("--domain-id", type=int, help=DOMAIN_HELP)
+@click.option("--name", help="Node name of the host (default agent_host_<pid>).")
+@click.option("--threads", default=1, show_default=True, help="Torch threads for learned agents.")
+@click.option("--once", is_flag=True, help="Exit when the episode ends (default: serve episode after episode).")
+def agents(ids, policy, model, greedy, transport, namespace, domain_id, name, threads, once) -> None:
+    """An agent host: many agents (each its own node by default) in one process."""
+    from formic_ros.agent_host import parse_ids, serve_agents
+
+    try:
+        agent_ids = parse_ids(ids)
+        serve_agents(agent_ids, policy, model=model, greedy=greedy, transport=transport, namespace=namespace,
+                     name=name, once=once, domain_id=domain_id, torch_threads=threads)
+    except (ValueError, FileNotFoundError) as exc:
+        raise click.ClickException(str(exc)) from exc
+    except KeyboardInterrupt:
+        sys.exit(130)
+
+
+# ------------------------------------------------------------------------------- planner
+@click.command()
+@click.option("--namespace", default="/formic", show_default=True, help=NAMESPACE_HELP)
+@click.option("--domain-id", type=int, help=DOMAIN_HELP)
+@click.option("--once", is_flag=True, help="Exit when the episode ends.")
+def planner(namespace, domain_id, once) -> None:
+    """The centralized planner node: reads the full state, commands every agent."""
+    from formic_ros.planner_node import serve_planner
+
+    try:
+        mismatches = serve_planner(namespace, once=once, domain_id=domain_id)
+    except KeyboardInterrupt:
+        sys.exit(130)
+    if mismatches:
+        raise click.ClickException(f"the planner's replica differed from the world {mismatches} time(s)")
+
+
+# --------------------------------------------------------------------------------- bench
+@click.command("ros")
+@click.option("--agents", "teams", default="16,64,128", show_default=True, help="Team sizes.")
+@click.option("--transports", default="batched,per-agent", show_default=True)
+@click.option("--steps", default=300, show_default=True, help="Lockstep steps per measurement.")
+@click.option("--size", default=64, show_default=True, help="World side.")
+@click.option("--repeats", default=1, show_default=True, help="Launches per setting (the best is kept).")
+@click.option("--domain-id", type=int, help=DOMAIN_HELP)
+@click.option("--json", "as_json", is_flag=True)
+def bench_ros(teams, transports, steps, size, repeats, domain_id, as_json) -> None:
+    """Lockstep steps/s of world + one host process over ROS, random policy (messaging cost)."""
+    from formic_ros.bench import bench_ros as measure
+
+    results = []
+    for transport in transports.split(","):
+        for n in teams.split(","):
+            results.append(measure(int(n), transport.strip(), steps, size, repeats, domain_id))
+            if not as_json:
+                r = results[-1]
+                click.echo(f"  {r['agents']:4d} agents, {r['transport']:9s}: {r['steps_per_s']:8.0f} steps/s "
+                           f"(world process {r['world_cpu_ms_per_step']:.2f} ms CPU a step, of which the core "
+                           f"{r['world_step_ms']:.2f}; missed {r['missed_actions']})")
+    if as_json:
+        _echo_json({"size": size, "steps": steps, "results": results})
+
+
+def register(cli: click.Group) -> None:
+    for command in (run, world, agents, planner):
+        cli.add_command(command)
+    bench = cli.commands.get("bench")
+    if isinstance(bench, click.Group):
+        bench.add_command(bench_ros)

@@ -1,0 +1,319 @@
+"""Agent host: one process that drives any set of agents over ROS.
+
+Per-agent transport (default): every agent is its own rclpy node ``agent_K`` in the namespace,
+with ``agent_K/observation`` in and ``agent_K/action`` out, all nodes in one events executor
+(ROS composition). That is what ``ros2 node list`` shows and what a robot's own node replaces.
+Batched transport: one node holds the ``observations``/``actions`` pair and answers for its
+agents in one message. Either way the host acts once per step for all its agents (a learned
+policy runs one batch), only when it has every one of its agents' observations for that step.
+
+Policies reset from the latched scenario (seed, team size); a restarted host therefore starts
+with fresh memory and answers from whatever step the world is at. Observations of a step the
+host has already answered (the world re-sends step 0 until everyone is heard) get the same
+actions again, never a second policy call.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+
+import numpy as np
+import rclpy
+from formic_interfaces.msg import (
+    ActionBatch,
+    AgentAction,
+    AgentObservation,
+    ObservationBatch,
+    ScenarioDescription,
+)
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.type_description_service import START_TYPE_DESCRIPTION_SERVICE_PARAM
+
+from formic_agent.policy import AgentBatch, CentralPolicy, Policy
+from formic_agent.registry import POLICY_NAMES, make_policy
+
+from . import convert, qos
+
+TRANSPORTS = ("per-agent", "batched")
+
+
+def parse_ids(text: str) -> list[int]:
+    """``0-31``, ``3``, ``0-3+8-11`` or ``0,2,5`` -> sorted agent ids."""
+    ids: set[int] = set()
+    for chunk in text.replace("+", ",").split(","):
+        chunk = chunk.strip()
+        if not chunk:
+            continue
+        lo, _, hi = chunk.partition("-")
+        try:
+            a, b = int(lo), int(hi) if hi else int(lo)
+        except ValueError as exc:
+            raise ValueError(f"bad agent range {chunk!r}") from exc
+        if not 0 <= a <= b:
+            raise ValueError(f"bad agent range {chunk!r}")
+        ids.update(range(a, b + 1))
+    if not ids:
+        raise ValueError(f"no agent ids in {text!r}")
+    return sorted(ids)
+
+
+def policy_groups(spec: str, agent_ids: list[int]) -> list[tuple[str, np.ndarray]]:
+    """Which policy drives each of these agents under a team spec such as
+    ``formic:0-15,csaf11:16-31`` (global ids, as ``formic run --policy``); a part without a
+    range drives every agent no other part names."""
+    owner: dict[int, str] = {}
+    default = None
+    for part in (p.strip() for p in spec.split(",") if p.strip()):
+        name, _, ranges = part.partition(":")
+        if name not in POLICY_NAMES:
+            raise ValueError(f"unknown policy {name!r}; choose from {', '.join(POLICY_NAMES)}")
+        if name == "planner":
+            raise ValueError("the centralized planner is a node of its own: run `formic planner`")
+        if not ranges:
+            default = name
+            continue
+        for a in parse_ids(ranges):
+            owner.setdefault(a, name)
+    groups: dict[str, list[int]] = {}
+    for a in agent_ids:
+        name = owner.get(a, default)
+        if name is None:
+            raise ValueError(f"agent {a} has no policy in {spec!r}")
+        groups.setdefault(name, []).append(a)
+    return [(name, np.array(ids, dtype=np.int64)) for name, ids in groups.items()]
+
+
+def select(batch: AgentBatch, rows: np.ndarray) -> AgentBatch:
+    """Rows of a batch (one policy group's agents)."""
+    return AgentBatch(
+        step=batch.step, agent_ids=batch.agent_ids[rows], observations=batch.observations[rows],
+        action_mask=batch.action_mask[rows], positions=batch.positions[rows], loads=batch.loads[rows],
+        queued=batch.queued[rows], world_shape=batch.world_shape,
+    )
+
+
+def lean_node(name: str, namespace: str) -> Node:
+    """An agent node without parameter, type-description or rosout endpoints: with a hundred
+    agents per process those would be most of the DDS endpoints to discover, and agent nodes
+    neither take parameters nor log (their host's node does)."""
+    return Node(
+        name, namespace=namespace, enable_rosout=False, start_parameter_services=False,
+        parameter_overrides=[Parameter(START_TYPE_DESCRIPTION_SERVICE_PARAM, value=False)],
+    )
+
+
+class AgentHost:
+    """The nodes and policies of one host; add :attr:`nodes` to an executor and spin."""
+
+    def __init__(
+        self,
+        agent_ids: list[int],
+        spec: str,
+        model: str | None = None,
+        greedy: bool = False,
+        transport: str = "per-agent",
+        namespace: str = qos.DEFAULT_NAMESPACE,
+        name: str | None = None,
+        torch_threads: int = 1,
+    ):
+        if transport not in TRANSPORTS:
+            raise ValueError(f"unknown transport {transport!r}; choose from {', '.join(TRANSPORTS)}")
+        self.ids = np.array(sorted(agent_ids), dtype=np.int64)
+        self.groups: list[tuple[Policy, np.ndarray]] = []
+        groups = policy_groups(spec, list(self.ids))
+        if any(policy_name == "formic" for policy_name, _ in groups):
+            import torch
+
+            # A host's batch is small: more threads only contend with the DDS threads and
+            # with other processes (16 agents on a busy 2-core machine: 1.7 ms a step, not 280).
+            torch.set_num_threads(torch_threads)
+        for policy_name, ids in groups:
+            policy = make_policy(policy_name, model=model, greedy=greedy)
+            if isinstance(policy, CentralPolicy):
+                raise ValueError(f"{policy_name} needs the full world: it runs as its own node")
+            self.groups.append((policy, ids))
+        self.transport = transport
+        self.control = rclpy.create_node(name or f"agent_host_{os.getpid()}", namespace=namespace)
+        self.log = self.control.get_logger()
+        self.nodes = [self.control]
+        self.control.create_subscription(ScenarioDescription, qos.SCENARIO, self._on_scenario, qos.LATCHED)
+        if transport == "batched":
+            self.control.create_subscription(ObservationBatch, qos.OBSERVATIONS, self._on_batch, qos.STREAM)
+            self.actions_pub = self.control.create_publisher(ActionBatch, qos.ACTIONS, qos.STREAM)
+        else:
+            self.action_pubs = {}
+            for a in self.ids.tolist():
+                node = lean_node(qos.agent_node_name(a), namespace)
+                node.create_subscription(AgentObservation, f"~/{qos.AGENT_OBSERVATION}",
+                                         lambda msg, a=a: self._on_agent_observation(a, msg), qos.STREAM)
+                self.action_pubs[a] = node.create_publisher(AgentAction, f"~/{qos.AGENT_ACTION}", qos.STREAM)
+                self.nodes.append(node)
+        self.scenario_json = ""
+        self.n_agents = 0
+        self.expected = 0  # this host's agents that are in the team
+        self.seed = 0
+        self.wipeout_starts: frozenset[int] = frozenset()
+        self.episodes = 0
+        self.finished = False  # the current episode has ended (a done observation arrived)
+        self._reset_steps()
+
+    # ---------------------------------------------------------------------- episode
+    def _reset_steps(self) -> None:
+        self.collecting = -1  # step whose per-agent observations are being gathered
+        self.gathered: dict[int, AgentObservation] = {}
+        self.answered_step = -1
+        self.answer_ids = np.zeros(0, dtype=np.int64)
+        self.answer = np.zeros(0, dtype=np.int64)
+        self.wiped_at = -1
+
+    def _start_episode(self) -> None:
+        for policy, _ in self.groups:
+            policy.reset(self.n_agents, self.seed)
+        self._reset_steps()
+        self.finished = False
+        self.episodes += 1
+
+    def _on_scenario(self, msg: ScenarioDescription) -> None:
+        if msg.scenario_json == self.scenario_json:
+            return
+        try:
+            scenario = convert.scenario_from_description(msg)
+        except ValueError as exc:
+            self.log.error(f"ignoring scenario: {exc}")
+            return
+        self.scenario_json = msg.scenario_json
+        self.n_agents = scenario.config.n_agents
+        self.seed = scenario.seed
+        self.wipeout_starts = frozenset(scenario.wipeout_starts)
+        outside = self.ids[self.ids >= self.n_agents]
+        if len(outside):
+            self.log.error(f"agents {outside.tolist()} are not in this team of {self.n_agents}: "
+                           "they get no observations")
+        self.expected = int((self.ids < self.n_agents).sum())
+        self._start_episode()
+        self.log.info(f"scenario seed {self.seed}: driving agents {_describe(self.ids)} ({self.transport})")
+
+    def _ready(self, step: int, done: bool) -> bool:
+        """Whether an observation of ``step`` should be answered (handles episode ends and a
+        world that starts the same scenario again)."""
+        if not self.scenario_json:
+            return False  # the latched scenario has not arrived yet: the world re-sends
+        if done:
+            self.finished = True
+            return False
+        if self.finished and step == 0:
+            self._start_episode()
+        return not self.finished
+
+    # ------------------------------------------------------------------- observations
+    def _on_agent_observation(self, agent: int, msg: AgentObservation) -> None:
+        if msg.agent_id != agent or not self._ready(msg.step, msg.done):
+            return
+        if msg.step == self.answered_step:
+            self._resend(agent)
+            return
+        if msg.step < max(self.collecting, self.answered_step):
+            return
+        if msg.step > self.collecting:
+            self.collecting, self.gathered = msg.step, {}
+        self.gathered[agent] = msg
+        if len(self.gathered) == self.expected:
+            self._answer(convert.batch_from_agent_observations([self.gathered[a] for a in sorted(self.gathered)]))
+
+    def _on_batch(self, msg: ObservationBatch) -> None:
+        if not self._ready(msg.step, msg.done) or msg.step < self.answered_step:
+            return
+        ids = convert.read(msg.agent_ids, np.uint32).astype(np.int64)
+        lookup = np.full(max(int(ids.max(initial=-1)), int(self.ids.max())) + 1, -1, dtype=np.int64)
+        lookup[ids] = np.arange(len(ids))
+        rows = lookup[self.ids]
+        rows = rows[rows >= 0]
+        if not len(rows):
+            return  # none of ours (a re-send for other hosts' agents)
+        if msg.step == self.answered_step:
+            self.actions_pub.publish(convert.action_batch(msg.step, self.answer_ids, self.answer))
+        elif len(rows) == len(ids) and (rows == np.arange(len(ids))).all():
+            self._answer(convert.batch_from_observation_batch(msg))  # every row, in order: no copy
+        else:
+            self._answer(convert.batch_from_observation_batch(msg, rows))
+
+    # ------------------------------------------------------------------------ actions
+    def _answer(self, batch: AgentBatch) -> None:
+        step = batch.step
+        if step in self.wipeout_starts and self.wiped_at != step:
+            for policy, _ in self.groups:
+                if getattr(policy, "uses_world_wipeouts", False):
+                    policy.wipe()
+            self.wiped_at = step
+        actions = np.zeros(len(batch), dtype=np.int64)
+        for policy, ids in self.groups:
+            rows = np.flatnonzero(np.isin(batch.agent_ids, ids))
+            if len(rows):
+                actions[rows] = policy.act(select(batch, rows))
+        self.answered_step, self.answer_ids, self.answer = step, batch.agent_ids, actions
+        self.collecting, self.gathered = -1, {}
+        if self.transport == "batched":
+            self.actions_pub.publish(convert.action_batch(step, batch.agent_ids, actions))
+        else:
+            for a, action in zip(batch.agent_ids.tolist(), actions.tolist()):
+                self.action_pubs[a].publish(AgentAction(step=step, agent_id=a, action=action))
+
+    def _resend(self, agent: int) -> None:
+        row = np.flatnonzero(self.answer_ids == agent)
+        if len(row):
+            action = int(self.answer[row[0]])
+            self.action_pubs[agent].publish(AgentAction(step=self.answered_step, agent_id=agent, action=action))
+
+
+def _describe(ids: np.ndarray) -> str:
+    return f"{ids[0]}-{ids[-1]}" if len(ids) == ids[-1] - ids[0] + 1 else ",".join(map(str, ids.tolist()))
+
+
+class WorldWatch:
+    """Notices that the world which published our scenario has left the graph, so a ``--once``
+    process that missed the final observation does not wait forever (checked every 0.5 s)."""
+
+    PERIOD_S = 0.5
+
+    def __init__(self, node: Node):
+        self.node = node
+        self.next_check = 0.0
+
+    def gone(self, scenario_json: str) -> bool:
+        now = time.monotonic()
+        if not scenario_json or now < self.next_check:
+            return False
+        self.next_check = now + self.PERIOD_S
+        return self.node.count_publishers(qos.SCENARIO) == 0
+
+
+def serve_agents(
+    agent_ids: list[int],
+    spec: str,
+    model: str | None = None,
+    greedy: bool = False,
+    transport: str = "per-agent",
+    namespace: str = qos.DEFAULT_NAMESPACE,
+    name: str | None = None,
+    once: bool = False,
+    domain_id: int | None = None,
+    torch_threads: int = 1,
+) -> int:
+    """Host these agents until interrupted (or, with ``once``, until an episode ends);
+    returns the number of episodes played."""
+    from .env import ros_session
+
+    with ros_session(domain_id) as executor:
+        host = AgentHost(agent_ids, spec, model=model, greedy=greedy, transport=transport,
+                         namespace=namespace, name=name, torch_threads=torch_threads)
+        for node in host.nodes:
+            executor.add_node(node)
+        watch = WorldWatch(host.control)
+        try:
+            while not (once and (host.finished or watch.gone(host.scenario_json))):
+                executor.spin_once(timeout_sec=0.2)
+        except KeyboardInterrupt:
+            pass
+        return host.episodes

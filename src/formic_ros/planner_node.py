@@ -1,0 +1,122 @@
+"""The centralized planner as a node: full state in, every agent's action out.
+
+The planner needs the whole World (queues, reservations, the grid), not an observation, so the
+node keeps its own replica: built from the latched scenario and stepped with exactly the
+actions the world applied (``applied_actions``). The core is deterministic, so the replica
+stays identical to the world's; the node checks this against every ``state`` digest.
+After the replica reaches step t it plans and publishes an ActionBatch for all agents.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from formic_interfaces.msg import ActionBatch, ScenarioDescription, WorldState
+from rclpy.node import Node
+
+from formic_agent.registry import make_policy
+from formic_world import World
+
+from . import convert, qos
+from .agent_host import WorldWatch
+
+RESEND_S = 1.0  # re-send the last actions when the world has not moved on for this long
+
+
+class PlannerNode(Node):
+    """Node ``planner``; call :meth:`tick` from the spin loop (it retries unsent actions)."""
+
+    def __init__(self, namespace: str = qos.DEFAULT_NAMESPACE):
+        super().__init__("planner", namespace=namespace)
+        self.planner = make_policy("planner")
+        self.actions_pub = self.create_publisher(ActionBatch, qos.ACTIONS, qos.STREAM)
+        self.create_subscription(ScenarioDescription, qos.SCENARIO, self._on_scenario, qos.LATCHED)
+        self.create_subscription(ActionBatch, qos.APPLIED_ACTIONS, self._on_applied, qos.STREAM)
+        self.create_subscription(WorldState, qos.STATE, self._on_state, qos.STREAM)
+        self.world: World | None = None
+        self.scenario_json = ""
+        self.pending: ActionBatch | None = None
+        self.sent_at = -np.inf
+        self.digests: dict[int, str] = {}  # replica digests and world digests not yet compared
+        self.world_digests: dict[int, str] = {}
+        self.mismatches = 0
+        self.finished = False
+
+    def _on_scenario(self, msg: ScenarioDescription) -> None:
+        if msg.scenario_json == self.scenario_json:
+            return
+        scenario = convert.scenario_from_description(msg)
+        self.scenario_json = msg.scenario_json
+        self.world = World(scenario)
+        self.planner.reset(scenario.config.n_agents, scenario.seed)
+        self.digests, self.world_digests = {0: self.world.state_digest()}, {}
+        self.finished = False
+        self.get_logger().info(f"scenario seed {scenario.seed}: planning for {scenario.config.n_agents} agents")
+        self._plan()
+
+    def _on_applied(self, msg: ActionBatch) -> None:
+        world = self.world
+        if world is None or world.done or msg.step < world.t:
+            return
+        if msg.step > world.t:
+            self.get_logger().error(
+                f"applied actions of step {msg.step} but the replica is at step {world.t} "
+                "(the planner joined mid-episode); waiting for the next scenario"
+            )
+            self.world = None
+            return
+        world.step(convert.actions_from_applied(msg, world.config.n_agents))
+        self.digests[world.t] = world.state_digest()
+        self._compare()
+        if world.done:
+            self.finished, self.pending = True, None
+        else:
+            self._plan()
+
+    def _on_state(self, msg: WorldState) -> None:
+        self.world_digests[msg.step] = msg.state_digest
+        self._compare()
+
+    def _compare(self) -> None:
+        for step in sorted(set(self.digests) & set(self.world_digests)):
+            if self.digests.pop(step) != self.world_digests.pop(step):
+                self.mismatches += 1
+                self.get_logger().error(f"replica differs from the world at step {step}: plans may be wrong")
+
+    def _plan(self) -> None:
+        world = self.world
+        actions = self.planner.act_world(world)
+        self.pending = convert.action_batch(world.t, np.arange(world.config.n_agents), actions)
+        self.sent_at = -np.inf
+        self.tick()
+
+    def tick(self) -> None:
+        """Publish the pending actions once the world listens; re-send when it stays silent."""
+        now = time.monotonic()
+        if self.pending is None or now - self.sent_at < RESEND_S or self.actions_pub.get_subscription_count() == 0:
+            return
+        self.actions_pub.publish(self.pending)
+        self.sent_at = now
+
+
+def serve_planner(
+    namespace: str = qos.DEFAULT_NAMESPACE,
+    once: bool = False,
+    domain_id: int | None = None,
+) -> int:
+    """Plan until interrupted (or, with ``once``, until an episode ends); returns the number
+    of replica mismatches seen."""
+    from .env import ros_session
+
+    with ros_session(domain_id) as executor:
+        node = PlannerNode(namespace)
+        executor.add_node(node)
+        watch = WorldWatch(node)
+        try:
+            while not (once and (node.finished or watch.gone(node.scenario_json))):
+                executor.spin_once(timeout_sec=0.1)
+                node.tick()
+        except KeyboardInterrupt:
+            pass
+        return node.mismatches

@@ -1,0 +1,263 @@
+"""The distributed ROS system with real processes: world, agent hosts, planner, launcher, a
+user's own agent node. Every test has its own ROS domain, UDPv4 only, small worlds, and every
+process it starts is bounded by a time limit and reaped."""
+
+from __future__ import annotations
+
+import signal
+import time
+
+import numpy as np
+import pytest
+
+rclpy = pytest.importorskip("rclpy")
+pytest.importorskip("formic_interfaces.msg")
+
+from ros_helpers import (  # noqa: E402
+    ROOT,
+    Spawner,
+    descendants,
+    fresh_domain_id,
+    ros_test_environment,
+    running,
+)
+
+from formic_agent.episode import run_episode  # noqa: E402
+from formic_agent.policy import AgentBatch  # noqa: E402
+from formic_agent.registry import parse_team  # noqa: E402
+from formic_ros import convert  # noqa: E402
+from formic_ros.agent_host import parse_ids, policy_groups  # noqa: E402
+from formic_ros.launcher import split_team  # noqa: E402
+from formic_ros.world_node import ActionInbox, RateLimitedLog  # noqa: E402
+from formic_world import NO_ACTION, World, WorldConfig, generate_scenario  # noqa: E402
+
+pytestmark = pytest.mark.filterwarnings("ignore:module 'sre_:DeprecationWarning")
+
+SMALL = ["--agents", "8", "--size", "24", "--seed", "0"]  # random gets some food here in 50 steps
+
+
+@pytest.fixture
+def spawner(tmp_path):
+    s = Spawner(tmp_path, fresh_domain_id())
+    yield s
+    s.reap_all()
+
+
+def sim_result(steps: int, policy: str) -> tuple[float, str]:
+    scenario = generate_scenario(WorldConfig(height=24, width=24, n_agents=8, episode_steps=steps), 0)
+    result = run_episode(scenario, policy)
+    return result.food, result.world.state_digest()
+
+
+# ------------------------------------------------------------------------ no processes
+def test_team_split_keeps_shared_mark_teams_whole():
+    team = parse_team("random:0-5,csaf11:6-9", 10)
+    hosts = split_team(team, 2)
+    assert sorted(sum(hosts, [])) == list(range(10))
+    assert any(set(range(6, 10)) <= set(h) for h in hosts)
+    assert [len(h) for h in hosts] == [5, 5]
+    assert split_team(parse_team("random", 3), 5) == [[0], [1], [2]]
+
+
+def test_host_policy_groups_use_global_ids():
+    assert parse_ids("0-3,8+10-11") == [0, 1, 2, 3, 8, 10, 11]
+    groups = policy_groups("formic:0-15,csaf11:16-31", [14, 15, 16])
+    assert [(name, ids.tolist()) for name, ids in groups] == [("formic", [14, 15]), ("csaf11", [16])]
+    assert [n for n, _ in policy_groups("random,csaf:4", [3, 4])] == ["random", "csaf"]
+    with pytest.raises(ValueError, match="no policy"):
+        policy_groups("random:0-3", [4])
+    with pytest.raises(ValueError, match="planner"):
+        policy_groups("planner", [0])
+
+
+def test_messages_carry_exactly_what_policies_see():
+    world = World(generate_scenario(WorldConfig(height=24, width=24, n_agents=5, episode_steps=10), 3))
+    result = world.step(np.array([0, 1, 2, 3, 4]))
+    direct = AgentBatch.from_world(world, observations=result.observations, action_mask=result.action_mask)
+    fields = dict(step=world.t, observations=result.observations, action_mask=result.action_mask, loads=world.loads,
+                  rewards=result.rewards, queued=world.queued, positions=world.pos, world_shape=world.grid.shape,
+                  done=False)
+    from_batch = convert.batch_from_observation_batch(convert.observation_batch(**fields))
+    from_agents = convert.batch_from_agent_observations(convert.agent_observations(agent_ids=range(5), **fields))
+    rows = np.array([1, 4])
+    subset = convert.batch_from_observation_batch(convert.observation_batch(**fields), rows)
+    for got in (from_batch, from_agents):
+        assert got.step == direct.step and got.world_shape == direct.world_shape
+        for name in ("agent_ids", "observations", "action_mask", "positions", "queued"):
+            np.testing.assert_array_equal(getattr(got, name), getattr(direct, name))
+        np.testing.assert_array_equal(got.loads.astype(np.float32), direct.loads.astype(np.float32))
+    np.testing.assert_array_equal(subset.observations, direct.observations[rows])
+    applied = convert.applied_actions(7, np.array([2, NO_ACTION, 4]))
+    assert bytes(applied.actions) == bytes([2, 255, 4])
+    assert convert.actions_from_applied(applied, 3).tolist() == [2, NO_ACTION, 4]
+
+
+class _Logger:
+    def __init__(self):
+        self.lines = []
+
+    def warning(self, text):
+        self.lines.append(text)
+
+
+def test_action_inbox_validates_every_entry():
+    logger = _Logger()
+    inbox = ActionInbox(4, RateLimitedLog(logger, period_s=60.0))
+    inbox.open(5)
+    inbox.offer(5, np.array([0, 1]), np.array([1]), "t")  # malformed
+    inbox.offer(4, np.array([0]), np.array([1]), "t")  # old
+    inbox.offer(6, np.array([0]), np.array([1]), "t")  # future
+    inbox.offer(5, np.array([0, 9, 2]), np.array([1, 1, 7]), "t")  # 9 unknown, 7 out of range
+    inbox.offer_one(5, 3, 200)
+    inbox.offer_one(5, 0, 3)  # duplicate: first answer wins
+    inbox.offer_one(5, 1, 4)
+    assert dict(inbox.rejected) == {"malformed": 1, "old step": 1, "future step": 1, "unknown agent": 1,
+                                    "action out of range": 2}
+    assert inbox.close().tolist() == [1, 4, NO_ACTION, NO_ACTION]
+    assert inbox.duplicates == 1
+    assert len(logger.lines) == 5  # one line per reason; the second out-of-range one is held back
+    inbox.offer_one(5, 2, 1)  # after the step closed
+    assert inbox.rejected["old step"] == 2
+    inbox.offer_one(5, 0, 1)  # a late copy of what step 5 applied: a duplicate
+    assert inbox.rejected["old step"] == 2 and inbox.duplicates == 2
+    inbox.offer_one(5, 0, 2)  # a different late answer is rejected
+    assert inbox.rejected["old step"] == 3
+
+
+# ------------------------------------------------------------------------ real processes
+@pytest.mark.parametrize("transport,policy", [("batched", "random"), ("per-agent", "random:0-3,csaf11:4-7")])
+def test_run_across_processes_equals_sim(spawner, transport, policy):
+    run = spawner.formic("run", "run", *SMALL, "--steps", "50", "--policy", policy, "--transport", transport,
+                         "--hosts", "2", "--domain-id", str(spawner.domain_id), "--deadline-ms", "5000",
+                         "--json", limit_s=120)
+    assert run.wait() == 0, run.output()[-3000:]
+    summary = run.json_line()
+    food, digest = sim_result(50, policy)
+    assert food > 0
+    assert (summary["food"], summary["state_digest"]) == (food, digest)
+    assert summary["missed_actions"] == 0 and summary["rejected_actions"] == {}
+    assert summary["hosts"] == 2 and set(summary["exit_codes"].values()) == {0}
+
+
+def test_planner_node_equals_sim(spawner):
+    run = spawner.formic("run", "run", *SMALL, "--steps", "30", "--policy", "planner", "--deadline-ms", "5000",
+                         "--domain-id", str(spawner.domain_id), "--json", limit_s=120)
+    assert run.wait() == 0, run.output()[-3000:]
+    summary = run.json_line()
+    assert (summary["food"], summary["state_digest"]) == sim_result(30, "planner")
+    assert summary["missed_actions"] == 0 and summary["exit_codes"]["planner"] == 0
+
+
+def test_user_node_replaces_a_simulated_agent(spawner):
+    run = spawner.formic("run", "run", *SMALL, "--steps", "40", "--policy", "random", "--external", "2",
+                         "--domain-id", str(spawner.domain_id), "--deadline-ms", "5000", "--json", limit_s=120)
+    user = spawner.python("external", str(ROOT / "examples" / "external_agent.py"), "--agent", "2", limit_s=120)
+    assert run.wait() == 0, run.output()[-3000:]
+    assert user.wait(timeout=30) == 0, user.output()  # it leaves when it sees the episode end
+    summary = run.json_line()
+    assert summary["missed_actions"] == 0
+    assert summary["last_answered_step"] == [39] * 8
+    assert summary["policy"] == "random,external:2"
+
+
+def test_killed_host_does_not_stop_the_world_and_a_restarted_one_rejoins(spawner):
+    steps = 300
+    world = spawner.formic("world", "world", *SMALL, "--steps", str(steps), "--deadline-ms", "500",
+                           "--domain-id", str(spawner.domain_id), "--json", limit_s=150)
+    host_args = ("--ids", "4-7", "--policy", "random", "--domain-id", str(spawner.domain_id), "--once")
+    spawner.formic("host_a", "agents", "--ids", "0-3", "--policy", "random", "--transport", "batched",
+                   "--domain-id", str(spawner.domain_id), "--once")
+    victim = spawner.formic("host_b", "agents", *host_args)
+    world.wait_for_text("stepping:", timeout=60)
+    victim.kill()
+    reborn = spawner.formic("host_b_again", "agents", *host_args)
+    assert world.wait() == 0, world.output()[-3000:]
+    assert reborn.wait(timeout=30) == 0, reborn.output()[-3000:]
+    summary = world.json_line()
+    missed = summary["missed_per_agent"]
+    assert summary["steps"] == steps
+    assert max(missed[:4]) <= 1, "the surviving host's agents kept answering (a hiccup under load aside)"
+    assert min(missed[4:]) > 1, "the killed host's agents missed steps"
+    assert summary["last_answered_step"] == [steps - 1] * 8, "the restarted host answered to the end"
+    assert "missed actions" in world.output()
+
+
+def test_bad_actions_are_rejected_and_logged(spawner, monkeypatch):
+    """A rogue node in this process drives agent 3 and floods the world with bad actions first."""
+    from formic_interfaces.msg import ActionBatch, AgentAction, AgentObservation
+    from rclpy.experimental import EventsExecutor
+
+    steps = 20
+    world = spawner.formic("world", "world", *SMALL, "--steps", str(steps), "--deadline-ms", "5000",
+                           "--domain-id", str(spawner.domain_id), "--json", limit_s=120)
+    spawner.formic("host", "agents", "--ids", "0-2,4-7", "--policy", "random", "--name", "host",
+                   "--domain-id", str(spawner.domain_id), "--once")
+    env = ros_test_environment(spawner.domain_id)
+    for key in ("FASTDDS_BUILTIN_TRANSPORTS", "ROS_AUTOMATIC_DISCOVERY_RANGE"):
+        monkeypatch.setenv(key, env[key])
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=spawner.domain_id)
+    executor = EventsExecutor(context=context)
+    node = rclpy.create_node("agent_3", namespace="/formic", context=context)
+    executor.add_node(node)
+    batch = node.create_publisher(ActionBatch, "/formic/actions", 10)
+    own = node.create_publisher(AgentAction, "~/action", 10)
+    other = node.create_publisher(AgentAction, "/formic/agent_1/action", 10)
+    answered: set[int] = set()
+    pending: list[tuple[int, float]] = []  # (step, when its garbage went out)
+
+    def on_observation(obs: AgentObservation) -> None:
+        t = obs.step
+        if obs.done or t in answered:
+            return
+        answered.add(t)
+        bad = [(t, [0, 1], [1]), (t, [3], [7]), (t, [2], [255]), (t + 1000, [3], [0]), (t, [99], [0])]
+        if t > 0:
+            bad.append((t - 1, [3], [0]))
+        for step, ids, acts in bad:
+            batch.publish(ActionBatch(step=step, agent_ids=convert.u32(np.array(ids)), actions=bytes(acts)))
+        other.publish(AgentAction(step=t, agent_id=3, action=1))  # on agent 1's topic
+        own.publish(AgentAction(step=t, agent_id=3, action=200))
+        pending.append((t, time.monotonic()))
+
+    node.create_subscription(AgentObservation, "~/observation", on_observation, 10)
+    graph: set[str] = set()
+    try:
+        deadline = time.monotonic() + 90
+        while world.alive() and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.01)
+            if pending and time.monotonic() - pending[0][1] > 0.02:  # the garbage is in: answer
+                own.publish(AgentAction(step=pending.pop()[0], agent_id=3, action=4))
+            if answered and not graph:  # what `ros2 node list` would show
+                graph = {f"{ns}/{name}" for name, ns in node.get_node_names_and_namespaces()}
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)
+    assert world.wait() == 0, world.output()[-3000:]
+    assert {f"/formic/{name}" for name in ["world", "host"] + [f"agent_{a}" for a in range(8)]} <= graph
+    summary = world.json_line()
+    assert summary["steps"] == steps and summary["missed_actions"] == 0
+    rejected = summary["rejected_actions"]
+    assert rejected["malformed"] == steps
+    assert rejected["future step"] == steps
+    assert rejected["unknown agent"] == steps
+    assert rejected["agent id mismatch"] == steps
+    assert rejected["action out of range"] == 3 * steps
+    assert rejected["old step"] >= steps - 1
+    log = world.output()
+    for reason in ("malformed", "future step", "unknown agent", "agent id mismatch", "action out of range", "old step"):
+        assert f"rejected action ({reason})" in log
+    assert log.count("rejected action (") < 6 * steps, "rejections are rate-limited"
+
+
+def test_ctrl_c_on_run_leaves_no_orphans(spawner):
+    run = spawner.formic("run", "run", "--agents", "4", "--size", "24", "--steps", "100000", "--policy", "random",
+                         "--domain-id", str(spawner.domain_id), limit_s=90)
+    run.wait_for_text("stepping:", timeout=60)
+    family = descendants(run.pid)
+    assert len(family) >= 2, "world and host are running"
+    run.popen.send_signal(signal.SIGINT)
+    assert run.wait(timeout=30) == 130, run.output()[-3000:]
+    left = [pid for pid in family if running(pid)]
+    assert left == [], f"orphans: {left}"
