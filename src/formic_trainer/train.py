@@ -60,6 +60,16 @@ class TrainConfig:
     # logits suppresses JOIN before the network can recognise a queue entry (measured: food
     # collapses), while the policy gradient alone teaches when to JOIN.
     valid_actions: str = "all"
+    # "bce": the paper's valid-action predictor (sigmoid of the logits vs the mask). "mass":
+    # -log of the probability the policy's move distribution puts on valid moves. With masked
+    # sampling the policy gradient never touches invalid logits, and BCE (a per-action
+    # threshold at 0) left agents unable to act unmasked (measured: 59 food with the filter,
+    # 3 without); "mass" trains exactly the unmasked softmax agents use at test time.
+    valid_loss: str = "bce"
+    # With action_filter="mask": also mask JOIN when invalid (True), or let agents try JOIN
+    # anywhere as at test time, where a JOIN with no queue in reach wastes the step (False).
+    mask_join: bool = True
+    init_weights: str = ""  # start the network from this checkpoint (warm start / fine-tune)
     optimizer: str = "nadam"
     lr: float = 5e-6
     max_grad_norm: float = 10.0
@@ -101,6 +111,8 @@ PRESETS = {
         reward_scale=0.1,
         action_filter="mask",
         valid_actions="moves",
+        valid_loss="mass",
+        mask_join=False,
         curriculum_start=100,
         curriculum_end=400,
         total_episodes=4000,
@@ -180,7 +192,7 @@ def policy_losses(
     """All loss terms over a batch of agent sequences (T, B, ...) from their initial state."""
     logits, values, _ = net(batch["obs"], (batch["h0"], batch["c0"]), batch["extra"])
     if cfg.action_filter == "mask":
-        logits_for_pi = logits.masked_fill(~batch["train_mask"], -1e9)
+        logits_for_pi = logits.masked_fill(~sampling_mask(cfg, batch["train_mask"]), -1e9)
     else:
         logits_for_pi = logits
     log_probs = torch.log_softmax(logits_for_pi, dim=-1)
@@ -195,10 +207,14 @@ def policy_losses(
     else:
         pg = -logp * adv
     value_err = 0.5 * (values - batch["returns"]) ** 2
-    valid_bce = F.binary_cross_entropy_with_logits(
-        logits, batch["train_mask"].float(), reduction="none"
-    )
-    valid_bce = valid_bce[..., :4].sum(-1) if cfg.valid_actions == "moves" else valid_bce.sum(-1)
+    if cfg.valid_loss == "mass":
+        move_logp = torch.log_softmax(logits[..., :4], dim=-1).masked_fill(~batch["train_mask"][..., :4], -1e9)
+        valid_term = -torch.logsumexp(move_logp, dim=-1).clamp(max=1e8)
+    else:
+        valid_term = F.binary_cross_entropy_with_logits(
+            logits, batch["train_mask"].float(), reduction="none"
+        )
+        valid_term = valid_term[..., :4].sum(-1) if cfg.valid_actions == "moves" else valid_term.sum(-1)
 
     def reduce(x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         total = (x * mask).sum()
@@ -208,7 +224,7 @@ def policy_losses(
         "policy": reduce(pg, loss_mask),
         "value": reduce(value_err, value_mask),
         "entropy": reduce(entropy, loss_mask),
-        "valid": reduce(valid_bce, loss_mask),
+        "valid": reduce(valid_term * batch["any_valid"], loss_mask),
     }
     terms["loss"] = (
         terms["policy"] - cfg.entropy_coef * terms["entropy"]
@@ -248,6 +264,7 @@ def update(net: ForMICNet, optimizer: torch.optim.Optimizer, cfg: TrainConfig, d
         "actions": torch.from_numpy(data["actions"]).long(),
         "logp": torch.from_numpy(data["logp"]),
         "train_mask": torch.from_numpy(data["train_mask"]),
+        "any_valid": torch.from_numpy(data["train_mask"][..., :4].any(-1).astype(np.float32)),
         "loss_mask": torch.from_numpy(data["loss_mask"]).float(),
         "value_mask": torch.from_numpy(data["value_mask"]).float(),
         "returns": torch.from_numpy(returns.astype(np.float32)),
@@ -295,11 +312,20 @@ class Rollout:
     arrays: dict[str, np.ndarray] = field(default_factory=dict)
 
 
+def sampling_mask(cfg: TrainConfig, train_mask):
+    """Actions the behaviour policy may sample in "mask" mode (numpy or torch)."""
+    if cfg.mask_join:
+        return train_mask
+    allowed = train_mask.clone() if isinstance(train_mask, torch.Tensor) else train_mask.copy()
+    allowed[..., 4] = True
+    return allowed
+
+
 def select_actions(cfg: TrainConfig, logits: torch.Tensor, valid: np.ndarray, train_mask: np.ndarray,
                    generator: torch.Generator, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Sample actions under the training filter. Returns (actions, log-probs, value_mask)."""
     if cfg.action_filter == "mask":
-        masked = logits.masked_fill(~torch.from_numpy(train_mask), -1e9)
+        masked = logits.masked_fill(~torch.from_numpy(sampling_mask(cfg, train_mask)), -1e9)
         probs = torch.softmax(masked, -1)
         actions = torch.multinomial(probs, 1, generator=generator)[:, 0]
         logp = torch.log_softmax(masked, -1).gather(-1, actions[:, None])[:, 0]
@@ -338,6 +364,10 @@ class Trainer:
         latest = self.run_dir / "latest.pt"
         if resume and latest.exists():
             self._resume(latest)
+        elif cfg.init_weights:
+            net, _ = load_network(cfg.init_weights)
+            self.net.load_state_dict(net.state_dict())
+            self.log(f"network initialised from {cfg.init_weights}")
         (self.run_dir / "config.json").write_text(json.dumps(cfg.to_dict(), indent=2))
         self.envs = MetaAgents(cfg)
         self.envs.rng = np.random.default_rng([cfg.seed, 3, self.episode])

@@ -147,7 +147,7 @@ class Scenario:
         return generate_scenario(self.config, self.seed)
 
 
-def _reserved_nest(config: WorldConfig) -> list[np.ndarray]:
+def nest_reserved_strips(config: WorldConfig) -> list[np.ndarray]:
     return [
         strip_cells(cache, direction, config.queue_len)
         for cache, direction in zip(nest_cache_cells(config.height, config.width), NEST_QUEUE_DIRECTIONS)
@@ -209,7 +209,7 @@ def _draw_resources(config: WorldConfig, rng: np.random.Generator) -> list[Resou
     lo, hi = resource_count_range(config.height, config.width)
     count = int(rng.integers(lo, hi + 1))
     forbidden = np.zeros((config.height, config.width), dtype=bool)
-    for strip in _reserved_nest(config):
+    for strip in nest_reserved_strips(config):
         forbidden[strip[:, 0], strip[:, 1]] = True
     resources = []
     for _ in range(count):
@@ -233,7 +233,7 @@ def _draw_obstacles(
     if count == 0:
         return []
     reserved = np.zeros((config.height, config.width), dtype=bool)
-    for strip in _reserved_nest(config):
+    for strip in nest_reserved_strips(config):
         reserved[strip[:, 0], strip[:, 1]] = True
     for res in resources:
         strip = strip_cells((res.row, res.col), res.direction, config.queue_len)

@@ -40,7 +40,7 @@ from .pheromones import deposit_values, highway_map
 from .scenario import (
     Scenario,
     ScenarioError,
-    _reserved_nest,
+    nest_reserved_strips,
     find_resource_strip,
     generate_scenario,
     passable_component_reaches,
@@ -209,7 +209,7 @@ class World:
         self.grid[old[0], old[1]] = FREE
         forbidden = self.grid != FREE
         forbidden |= self.agent_at >= 0
-        for strip in _reserved_nest(cfg):
+        for strip in nest_reserved_strips(cfg):
             forbidden[strip[:, 0], strip[:, 1]] = True
         for i in range(len(self.resource_pos)):
             if i != res:
