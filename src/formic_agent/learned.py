@@ -9,16 +9,8 @@ import numpy as np
 import torch
 
 from .checkpoint import load_network
-from .network import ForMICNet
+from .network import ForMICNet, nest_features
 from .policy import AgentBatch, Policy, agent_uniforms, sample_rows
-
-
-def extra_inputs(batch: AgentBatch) -> np.ndarray:
-    """Odometry extension: offset to the nest centre (/ world size) and own load."""
-    height, width = batch.world_shape
-    to_nest_r = (height // 2 - 0.5 - batch.positions[:, 0]) / height
-    to_nest_c = (width // 2 - 0.5 - batch.positions[:, 1]) / width
-    return np.stack([to_nest_r, to_nest_c, batch.loads], axis=1).astype(np.float32)
 
 
 class LearnedPolicy(Policy):
@@ -62,7 +54,7 @@ class LearnedPolicy(Policy):
         ids = torch.as_tensor(batch.agent_ids, dtype=torch.long)
         self._ensure_capacity(int(ids.max()))
         obs = torch.from_numpy(batch.observations).unsqueeze(0)
-        extra = torch.from_numpy(extra_inputs(batch)).unsqueeze(0)
+        extra = torch.from_numpy(nest_features(batch.positions, batch.loads, batch.world_shape)).unsqueeze(0)
         state = (self.hidden[:, ids], self.cell[:, ids])
         logits, _, (h, c) = self.net(obs, state, extra)
         self.hidden[:, ids], self.cell[:, ids] = h, c

@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 from torch import nn
 
@@ -44,7 +45,18 @@ NETWORK_PRESETS = {
     "cpu": NetworkConfig(conv1=16, conv2=32, fc=64, rnn=64),
     "cpu-nest": NetworkConfig(conv1=16, conv2=32, fc=64, rnn=64, nest_input=True),
 }
-N_EXTRA_INPUTS = 3  # nest row offset, nest col offset (both / world size), load
+N_EXTRA_INPUTS = 4  # unit vector to the nest (2), distance to it / 32, own load
+
+
+def nest_features(positions: np.ndarray, loads: np.ndarray, world_shape: tuple[int, int]) -> np.ndarray:
+    """The opt-in odometry input (N, 4) float32: the direction to the nest centre as a unit
+    vector, the distance in units of 32 cells, and the agent's load. Kept at unit scale: raw
+    offsets divided by the world size are tiny near the nest, and the network then learned
+    homing far more slowly (measured)."""
+    height, width = world_shape
+    offset = np.stack([height // 2 - 0.5 - positions[:, 0], width // 2 - 0.5 - positions[:, 1]], axis=1)
+    distance = np.linalg.norm(offset, axis=1, keepdims=True)
+    return np.concatenate([offset / distance, distance / 32.0, loads[:, None]], axis=1).astype(np.float32)
 
 
 def _conv_block(c_in: int, c_out: int) -> list[nn.Module]:

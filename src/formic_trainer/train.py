@@ -28,8 +28,8 @@ import torch
 import torch.nn.functional as F
 
 from formic_agent.checkpoint import load_network, read_checkpoint, save_checkpoint
-from formic_agent.network import NETWORK_PRESETS, ForMICNet, NetworkConfig
-from formic_world import World, WorldConfig, generate_scenario
+from formic_agent.network import N_EXTRA_INPUTS, NETWORK_PRESETS, ForMICNet, NetworkConfig, nest_features
+from formic_world import Scenario, World, WorldConfig, generate_scenario
 from formic_world.pheromones import curriculum_intensities
 
 
@@ -69,6 +69,15 @@ class TrainConfig:
     # With action_filter="mask": also mask JOIN when invalid (True), or let agents try JOIN
     # anywhere as at test time, where a JOIN with no queue in reach wastes the step (False).
     mask_join: bool = True
+    # Filter annealing (beyond the paper; "mask" mode): each learning agent-episode is filtered
+    # with a probability falling linearly from 1 at filter_anneal_start to filter_final at
+    # filter_anneal_end. Unfiltered agents act as at test time while the valid-action loss still
+    # teaches the filter in the states they reach, so they learn to recover from their own
+    # mistakes (an always-filtered policy never visits them: measured 59 food with the filter,
+    # 3 without).
+    filter_anneal_start: int = 0
+    filter_anneal_end: int = 0
+    filter_final: float = 1.0
     init_weights: str = ""  # start the network from this checkpoint (warm start / fine-tune)
     optimizer: str = "nadam"
     lr: float = 5e-6
@@ -113,6 +122,9 @@ PRESETS = {
         valid_actions="moves",
         valid_loss="mass",
         mask_join=False,
+        filter_anneal_start=40,
+        filter_anneal_end=300,
+        filter_final=0.0,
         curriculum_start=100,
         curriculum_end=400,
         total_episodes=4000,
@@ -127,6 +139,35 @@ def make_config(preset: str = "paper", **overrides) -> TrainConfig:
 
 
 # ----------------------------------------------------------------------------- environments
+def scenario_rng(cfg: TrainConfig, episode: int) -> np.random.Generator:
+    """The scenario stream of a run that starts (or resumes) at global ``episode``."""
+    return np.random.default_rng([cfg.seed, 3, episode])
+
+
+def sample_scenarios(cfg: TrainConfig, rng: np.random.Generator,
+                     episode: int) -> tuple[list[Scenario], float, float]:
+    """One episode set's scenarios, one per meta-agent world (random side, obstacle density
+    and seed, drawn from ``rng`` in that order), with the curriculum's pheromone intensities
+    at global ``episode``. Returns (scenarios, highway intensity, deposit strength). The
+    in-process trainer and the ROS world node (distributed training) both draw from here."""
+    if cfg.curriculum and cfg.pheromones:
+        highway, deposit = curriculum_intensities(episode, cfg.curriculum_start, cfg.curriculum_end)
+    else:
+        highway, deposit = 0.0, 1.0
+    scenarios = []
+    for team, (lo, hi) in zip(cfg.teams, cfg.world_sizes):
+        side = 2 * int(rng.integers(lo // 2, hi // 2 + 1))
+        config = WorldConfig(
+            height=side, width=side, n_agents=team,
+            obstacle_density=float(rng.uniform(*cfg.obstacle_range)),
+            episode_steps=cfg.episode_steps, view_size=cfg.view_size,
+            highway_intensity=highway, deposit_strength=deposit,
+            pheromones_visible=cfg.pheromones, training_start=cfg.training_start,
+        )
+        scenarios.append(generate_scenario(config, int(rng.integers(2**31))))
+    return scenarios, highway, deposit
+
+
 class MetaAgents:
     """All training worlds, stepped together so one forward pass serves every agent."""
 
@@ -144,23 +185,8 @@ class MetaAgents:
 
     def reset(self, episode: int) -> None:
         """New scenarios for every world; curriculum intensities from the global episode."""
-        cfg = self.cfg
-        if cfg.curriculum and cfg.pheromones:
-            highway, deposit = curriculum_intensities(episode, cfg.curriculum_start, cfg.curriculum_end)
-        else:
-            highway, deposit = 0.0, 1.0
-        self.highway, self.deposit = highway, deposit
-        self.worlds = []
-        for team, (lo, hi) in zip(cfg.teams, cfg.world_sizes):
-            side = 2 * int(self.rng.integers(lo // 2, hi // 2 + 1))
-            config = WorldConfig(
-                height=side, width=side, n_agents=team,
-                obstacle_density=float(self.rng.uniform(*cfg.obstacle_range)),
-                episode_steps=cfg.episode_steps, view_size=cfg.view_size,
-                highway_intensity=highway, deposit_strength=deposit,
-                pheromones_visible=cfg.pheromones, training_start=cfg.training_start,
-            )
-            self.worlds.append(World(generate_scenario(config, int(self.rng.integers(2**31)))))
+        scenarios, self.highway, self.deposit = sample_scenarios(self.cfg, self.rng, episode)
+        self.worlds = [World(scenario) for scenario in scenarios]
 
     def observe(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(obs, extra, env-valid mask, training mask, queued) for every agent of every world."""
@@ -171,9 +197,8 @@ class MetaAgents:
             valid.append(v)
             train.append(w.training_action_mask(v))
             queued.append(w.queued)
-            h, wd = w.grid.shape
-            extra.append(np.stack([(h // 2 - 0.5 - w.pos[:, 0]) / h, (wd // 2 - 0.5 - w.pos[:, 1]) / wd, w.loads], 1))
-        return (np.concatenate(obs), np.concatenate(extra).astype(np.float32), np.concatenate(valid),
+            extra.append(nest_features(w.pos, w.loads, w.grid.shape))
+        return (np.concatenate(obs), np.concatenate(extra), np.concatenate(valid),
                 np.concatenate(train), np.concatenate(queued))
 
     def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -192,7 +217,8 @@ def policy_losses(
     """All loss terms over a batch of agent sequences (T, B, ...) from their initial state."""
     logits, values, _ = net(batch["obs"], (batch["h0"], batch["c0"]), batch["extra"])
     if cfg.action_filter == "mask":
-        logits_for_pi = logits.masked_fill(~sampling_mask(cfg, batch["train_mask"]), -1e9)
+        allowed = batch["sample_mask"] if "sample_mask" in batch else sampling_mask(cfg, batch["train_mask"])
+        logits_for_pi = logits.masked_fill(~allowed, -1e9)
     else:
         logits_for_pi = logits
     log_probs = torch.log_softmax(logits_for_pi, dim=-1)
@@ -264,6 +290,7 @@ def update(net: ForMICNet, optimizer: torch.optim.Optimizer, cfg: TrainConfig, d
         "actions": torch.from_numpy(data["actions"]).long(),
         "logp": torch.from_numpy(data["logp"]),
         "train_mask": torch.from_numpy(data["train_mask"]),
+        **({"sample_mask": torch.from_numpy(data["sample_mask"])} if "sample_mask" in data else {}),
         "any_valid": torch.from_numpy(data["train_mask"][..., :4].any(-1).astype(np.float32)),
         "loss_mask": torch.from_numpy(data["loss_mask"]).float(),
         "value_mask": torch.from_numpy(data["value_mask"]).float(),
@@ -312,6 +339,15 @@ class Rollout:
     arrays: dict[str, np.ndarray] = field(default_factory=dict)
 
 
+def filter_probability(cfg: TrainConfig, episode: int) -> float:
+    """Probability that an agent-episode acts under the training filter."""
+    start, end = cfg.filter_anneal_start, cfg.filter_anneal_end
+    if end <= start:
+        return 1.0
+    fraction = min(max((episode - start) / (end - start), 0.0), 1.0)
+    return 1.0 + fraction * (cfg.filter_final - 1.0)
+
+
 def sampling_mask(cfg: TrainConfig, train_mask):
     """Actions the behaviour policy may sample in "mask" mode (numpy or torch)."""
     if cfg.mask_join:
@@ -322,10 +358,13 @@ def sampling_mask(cfg: TrainConfig, train_mask):
 
 
 def select_actions(cfg: TrainConfig, logits: torch.Tensor, valid: np.ndarray, train_mask: np.ndarray,
-                   generator: torch.Generator, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Sample actions under the training filter. Returns (actions, log-probs, value_mask)."""
+                   generator: torch.Generator, rng: np.random.Generator,
+                   sample_mask: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Sample actions under the training filter. Returns (actions, log-probs, value_mask).
+    In "mask" mode ``sample_mask`` (default: ``sampling_mask``) says what may be sampled."""
     if cfg.action_filter == "mask":
-        masked = logits.masked_fill(~torch.from_numpy(sampling_mask(cfg, train_mask)), -1e9)
+        allowed = sampling_mask(cfg, train_mask) if sample_mask is None else sample_mask
+        masked = logits.masked_fill(~torch.from_numpy(allowed), -1e9)
         probs = torch.softmax(masked, -1)
         actions = torch.multinomial(probs, 1, generator=generator)[:, 0]
         logp = torch.log_softmax(masked, -1).gather(-1, actions[:, None])[:, 0]
@@ -370,7 +409,7 @@ class Trainer:
             self.log(f"network initialised from {cfg.init_weights}")
         (self.run_dir / "config.json").write_text(json.dumps(cfg.to_dict(), indent=2))
         self.envs = MetaAgents(cfg)
-        self.envs.rng = np.random.default_rng([cfg.seed, 3, self.episode])
+        self.envs.rng = scenario_rng(cfg, self.episode)
         from torch.utils.tensorboard import SummaryWriter
 
         self.writer = SummaryWriter(str(self.run_dir / "tb"))
@@ -411,6 +450,7 @@ class Trainer:
         cfg, envs, net = self.cfg, self.envs, self.net
         envs.reset(self.episode)
         n, learners = envs.n_agents, envs.learners
+        unfiltered = self.rng.random(n) >= filter_probability(cfg, self.episode)
         h = torch.zeros(1, n, net.config.rnn)
         c = torch.zeros(1, n, net.config.rnn)
         food = np.zeros(len(envs.worlds))
@@ -421,12 +461,13 @@ class Trainer:
             T = min(cfg.rollout_steps, cfg.episode_steps - _chunk_start)
             buf = {
                 "obs": np.zeros((T, len(learners), *obs.shape[1:]), np.float32),
-                "extra": np.zeros((T, len(learners), 3), np.float32),
+                "extra": np.zeros((T, len(learners), N_EXTRA_INPUTS), np.float32),
                 "actions": np.zeros((T, len(learners)), np.int64),
                 "logp": np.zeros((T, len(learners)), np.float32),
                 "values": np.zeros((T, len(learners)), np.float32),
                 "rewards": np.zeros((T, len(learners)), np.float32),
                 "train_mask": np.zeros((T, len(learners), 5), bool),
+                "sample_mask": np.zeros((T, len(learners), 5), bool),
                 "loss_mask": np.zeros((T, len(learners)), np.float32),
                 "value_mask": np.zeros((T, len(learners)), np.float32),
                 "h0": h[:, learners].numpy().copy(),
@@ -438,7 +479,10 @@ class Trainer:
                         torch.from_numpy(obs)[None], (h, c), torch.from_numpy(extra)[None]
                     )
                 logits, values = logits[0], values[0]
-                actions, logp, value_mask = select_actions(cfg, logits, valid, train_mask, self.generator, self.rng)
+                allowed = sampling_mask(cfg, train_mask)
+                allowed[unfiltered] = True
+                actions, logp, value_mask = select_actions(cfg, logits, valid, train_mask, self.generator,
+                                                           self.rng, sample_mask=allowed)
                 valid_rate.append(float(valid[np.arange(n), actions][~queued].mean()) if (~queued).any() else 1.0)
                 buf["obs"][t] = obs[learners]
                 buf["extra"][t] = extra[learners]
@@ -446,6 +490,7 @@ class Trainer:
                 buf["logp"][t] = logp[learners]
                 buf["values"][t] = values.numpy()[learners]
                 buf["train_mask"][t] = train_mask[learners]
+                buf["sample_mask"][t] = allowed[learners]
                 buf["loss_mask"][t] = ~queued[learners]
                 buf["value_mask"][t] = value_mask[learners]
                 rewards, step_food = envs.step(actions)
@@ -468,6 +513,7 @@ class Trainer:
         result["valid_rate"] = float(np.mean(valid_rate))
         result["highway_intensity"] = envs.highway
         result["deposit_strength"] = envs.deposit
+        result["filter_probability"] = filter_probability(cfg, self.episode - len(envs.worlds))
         return result
 
     def train(self, episodes: int | None = None, minutes: float | None = None) -> None:
