@@ -57,7 +57,11 @@ SAMPLES = {
         agent_ids=array.array("I", [0, 5, 2**32 - 1]),
         channels=C,
         size=S,
+        encoding=1,
         data=f32(N * C * S * S),
+        nonzero_bits=u8(N * (C * S * S + 7) // 8),
+        one_bits=u8(40),
+        other_values=f32(17, 0.125),
         action_masks=u8(N * 5, 2),
         loads=array.array("f", [0.0, 1.0, 0.5]),
         rewards=array.array("f", [0.0, -0.25, 10.0]),
@@ -216,3 +220,9 @@ def test_mcap_ros2_decodes_our_types():
         for field, value in SAMPLES[name].items():
             assert as_plain(getattr(decoded, field)) == as_plain(value), (name, field)
     assert seen == set(SAMPLES)
+
+
+def test_observation_encodings():
+    """ObservationBatch names its encodings; a message that only fills ``data`` is float32."""
+    assert (msg_mod.ObservationBatch.ENCODING_FLOAT32, msg_mod.ObservationBatch.ENCODING_COMPACT) == (0, 1)
+    assert msg_mod.ObservationBatch().encoding == msg_mod.ObservationBatch.ENCODING_FLOAT32
