@@ -94,7 +94,7 @@ class TrainConfig:
     training_start: bool = True  # some agents start in cache queues loaded (reference behaviour)
     # Run
     total_episodes: int = 24000  # environment episodes (summed over meta-agents)
-    checkpoint_every: int = 5  # updates
+    checkpoint_every: int = 1  # episode sets (one episode in every meta-agent world)
     threads: int = 1
 
     def to_dict(self) -> dict:
@@ -319,7 +319,7 @@ def update(net: ForMICNet, optimizer: torch.optim.Optimizer, cfg: TrainConfig, d
             optimizer.step()
             terms["grad_norm"] = grad_norm
             for k, v in terms.items():
-                stats.setdefault(k, []).append(float(v))
+                stats.setdefault(k, []).append(float(v.detach()) if torch.is_tensor(v) else float(v))
     return {k: float(np.mean(v)) for k, v in stats.items()}
 
 
@@ -394,6 +394,7 @@ class Trainer:
         self.net = self.net.to(memory_format=torch.channels_last)
         self.optimizer = make_optimizer(self.net, cfg)
         self.episode = 0  # global environment episodes finished
+        self.episode_sets = 0  # in this process
         self.updates = 0
         self.env_steps = 0
         self.seconds = 0.0
@@ -536,7 +537,8 @@ class Trainer:
                 f"ent {stats['entropy']:.3f} valid {stats['valid_accuracy']:.3f} act-ok {stats['valid_rate']:.2f} | "
                 f"I_h {stats['highway_intensity']:.2f} | {sps:,.0f} agent-steps/s | {self.seconds / 60:.1f} min"
             )
-            if self.updates // max(1, self.cfg.episode_steps // self.cfg.rollout_steps) % self.cfg.checkpoint_every == 0:
+            self.episode_sets += 1
+            if self.episode_sets % self.cfg.checkpoint_every == 0:
                 self.save()
         self.save()
         self.writer.close()
