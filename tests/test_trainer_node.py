@@ -105,6 +105,7 @@ def experience(tmp_path_factory):
     reference = Trainer(CFG, tmp / "reference", resume=False, log=quiet)
     versions = [snapshot(reference.net)]
     for collector, last_obs, outputs in chunks:
+        reference.rng.random(4)  # each chunk is an episode: the trainer's episode-start filter draw
         update(reference.net, reference.optimizer, CFG, reference_data(collector, last_obs, outputs), reference.rng)
         versions.append(snapshot(reference.net))
     return {"tmp": tmp, "chunks": chunks, "versions": versions}
@@ -143,7 +144,7 @@ def test_trainer_node_broadcasts_the_in_process_update(experience, monkeypatch):
     from formic_interfaces.msg import Rollout, Weights
 
     run_dir = experience["tmp"] / "node"
-    overrides = [arg for key, value in UPDATE_FIELDS.items() for arg in ("--set", f"{key}={value}")]
+    overrides = [arg for key, value in {**UPDATE_FIELDS, "teams": 4}.items() for arg in ("--set", f"{key}={value}")]
     env = dict(os.environ, ROS_DOMAIN_ID=str(DOMAIN_ID), FASTDDS_BUILTIN_TRANSPORTS="UDPv4",
                ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", PYTHONUNBUFFERED="1")
     node_proc = subprocess.Popen(

@@ -127,28 +127,56 @@ def run(policy, model, greedy, scenario_file, hosts, transport, external, record
 @click.option("--viewer-every", default=10, show_default=True, help="Publish map and markers every k steps (0: never).")
 @click.option("--dt", default=0.1, show_default=True, help="Simulated seconds per step (/clock).")
 @click.option("--training-masks", is_flag=True, help="Fill the training-filter masks of ObservationBatch.")
+@click.option("--observation-encoding", type=click.Choice(["compact", "float32"]), default="compact", show_default=True,
+              help="How ObservationBatch carries observations: compact (lossless, ~10x smaller) or plain float32.")
 @click.option("--require-subscriber", "require", multiple=True,
               type=click.Choice(["state", "applied_actions", "observations", "summary", "scenario", "score"]),
               help="Do not start before this topic has a subscriber (e.g. a recorder); repeatable.")
 @click.option("--stay", is_flag=True, help="Keep serving the latched scenario and summary after the episode.")
+@click.option("--train-config", type=click.Path(exists=True, dir_okay=False),
+              help="Training mode: play --episodes episodes on scenarios drawn as `formic train` draws them "
+                   "for this training configuration (a run directory's config.json); world options are ignored.")
+@click.option("--episodes", default=1, show_default=True, help="Training mode: episodes to play.")
+@click.option("--first-episode", default=0, show_default=True,
+              help="Training mode: global episode to start from (a resumed run's).")
 @click.option("--progress", is_flag=True, help="Show a progress bar on stderr.")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as one JSON line.")
 def world(scenario_file, policy_label, namespace, domain_id, deadline_ms, startup_timeout, rate, viewer_every,
-          dt, training_masks, require, stay, progress, as_json, **world_kw) -> None:
+          dt, training_masks, observation_encoding, require, stay, train_config, episodes, first_episode, progress,
+          as_json, **world_kw) -> None:
     """The world node: owns the simulation and steps it with the agents over ROS."""
-    from formic_ros.world_node import WorldNodeOptions, serve_world
+    from formic_ros.world_node import WorldNodeOptions, serve_training_world, serve_world
 
-    scenario = _load_scenario(scenario_file, world_kw)
     options = WorldNodeOptions(
         namespace=namespace, deadline_s=deadline_ms / 1e3, startup_timeout_s=startup_timeout, rate_hz=rate,
         viewer_every=viewer_every, dt=dt, policy_label=policy_label, training_masks=training_masks,
+        observation_encoding=observation_encoding,
         require_subscribers=tuple(require), progress=progress,
     )
+    if train_config:
+        from formic_ros.trainer_node import load_train_config
+        from formic_ros.world_node import require_one_world
+
+        try:
+            cfg = load_train_config(train_config)
+            require_one_world(cfg)
+        except (TypeError, ValueError) as exc:
+            raise click.ClickException(f"{train_config}: {exc}") from exc
     try:
-        serve_world(scenario, options, domain_id=domain_id,
-                    on_summary=_echo_json if as_json else _print_ros_summary, stay=stay)
+        if train_config:
+            serve_training_world(cfg, episodes, options, first_episode=first_episode, domain_id=domain_id,
+                                 on_episode=_echo_json if as_json else _print_training_episode)
+        else:
+            serve_world(_load_scenario(scenario_file, world_kw), options, domain_id=domain_id,
+                        on_summary=_echo_json if as_json else _print_ros_summary, stay=stay)
     except KeyboardInterrupt:
         sys.exit(130)
+
+
+def _print_training_episode(summary: dict) -> None:
+    h, w = summary["size"]
+    click.echo(f"ep {summary['episode']:6d} | food {summary['food']:6.1f} | {h}x{w}, seed {summary['seed']} | "
+               f"I_h {summary['highway_intensity']:.2f} | missed actions {summary['missed_actions']}")
 
 
 # -------------------------------------------------------------------------------- agents
@@ -164,18 +192,91 @@ def world(scenario_file, policy_label, namespace, domain_id, deadline_ms, startu
 @click.option("--name", help="Node name of the host (default agent_host_<pid>).")
 @click.option("--threads", default=1, show_default=True, help="Torch threads for learned agents.")
 @click.option("--once", is_flag=True, help="Exit when the episode ends (default: serve episode after episode).")
-def agents(ids, policy, model, greedy, transport, namespace, domain_id, name, threads, once) -> None:
+@click.option("--train-config", type=click.Path(exists=True, dir_okay=False),
+              help="Learning mode (batched transport): the agents act and send rollouts for the trainer node "
+                   "under this training configuration (a run directory's config.json); --policy is ignored.")
+@click.option("--switch-weights", type=click.Choice(["chunk", "episode"]), default="chunk", show_default=True,
+              help="Learning mode: wait for each rollout's update and act on with it (as `formic train`), "
+                   "or never wait and take the newest weights at each episode start.")
+@click.option("--episodes", type=int, help="Learning mode: exit after this many episodes.")
+@click.option("--first-episode", default=0, show_default=True,
+              help="Learning mode: global episode number of the first episode (a resumed run's).")
+def agents(ids, policy, model, greedy, transport, namespace, domain_id, name, threads, once, train_config,
+           switch_weights, episodes, first_episode) -> None:
     """An agent host: many agents (each its own node by default) in one process."""
     from formic_ros.agent_host import parse_ids, serve_agents
 
     try:
         agent_ids = parse_ids(ids)
+        if train_config:
+            from formic_ros.agent_host import serve_learning_agents
+            from formic_ros.trainer_node import load_train_config
+
+            if transport != "batched":
+                raise click.UsageError("learning mode (--train-config) needs --transport batched")
+            serve_learning_agents(agent_ids, load_train_config(train_config), switch=switch_weights,
+                                  first_episode=first_episode, namespace=namespace, name=name,
+                                  episodes=1 if once else episodes, domain_id=domain_id, torch_threads=threads)
+            return
         serve_agents(agent_ids, policy, model=model, greedy=greedy, transport=transport, namespace=namespace,
                      name=name, once=once, domain_id=domain_id, torch_threads=threads)
     except (ValueError, FileNotFoundError) as exc:
         raise click.ClickException(str(exc)) from exc
     except KeyboardInterrupt:
         sys.exit(130)
+
+
+# ------------------------------------------------------------------------------ training
+@click.command("train-ros")
+@click.option("--preset", default="cpu", show_default=True, type=click.Choice(["cpu", "paper"]))
+@click.option("--train-config", type=click.Path(exists=True, dir_okay=False),
+              help="Start from this training configuration (a run directory's config.json) instead of --preset.")
+@click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE",
+              help="Override a training field (one world: --set teams=N).")
+@click.option("--run-dir", type=click.Path(file_okay=False), default="runs/formic-ros", show_default=True,
+              help="Checkpoints (latest.pt) and TensorBoard logs; resumed unless --fresh.")
+@click.option("--episodes", type=int, required=True, help="Environment episodes to add in this call.")
+@click.option("--fresh", is_flag=True, help="Ignore an existing checkpoint in --run-dir.")
+@click.option("--switch-weights", type=click.Choice(["chunk", "episode"]), default="chunk", show_default=True,
+              help="Hosts wait for each rollout's update (as `formic train`), or take new weights per episode.")
+@click.option("--namespace", default="/formic", show_default=True, help=NAMESPACE_HELP)
+@click.option("--domain-id", type=int, help=DOMAIN_HELP)
+@click.option("--deadline-ms", default=120000.0, show_default=True,
+              help="Lockstep deadline; a step can wait for an update, so it is long.")
+@click.option("--startup-timeout", default=120.0, show_default=True, help="Seconds step 0 waits for every agent.")
+@click.option("--viewer-every", default=0, show_default=True, help="Publish map and markers every k steps (0: never).")
+@click.option("--log-dir", type=click.Path(file_okay=False), help="Write each process's log here instead of stderr.")
+@click.option("--timeout", type=float, help="Give up after this many seconds.")
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON object at the end.")
+def train_ros(preset, train_config, overrides, run_dir, episodes, fresh, switch_weights, namespace, domain_id,
+              deadline_ms, startup_timeout, viewer_every, log_dir, timeout, as_json) -> None:
+    """Distributed training: trainer node, world (training scenarios) and a learning host as
+    separate ROS processes; same settings and seeds give `formic train`'s learning curve."""
+    from formic_ros.launcher import TrainRunOptions, launch_training
+
+    from .ros_record_commands import training_config
+
+    _sigterm_as_interrupt()
+    try:
+        cfg = training_config(preset, train_config, overrides)
+        options = TrainRunOptions(
+            config=cfg, run_dir=run_dir, episodes=episodes, fresh=fresh, switch=switch_weights, namespace=namespace,
+            domain_id=domain_id, deadline_ms=deadline_ms, startup_timeout_s=startup_timeout,
+            viewer_every=viewer_every, log_dir=log_dir, timeout_s=timeout,
+            on_episode=None if as_json else _print_training_episode,
+        )
+        result = launch_training(options)
+    except KeyboardInterrupt:
+        click.echo("interrupted: every process stopped (the trainer saved its checkpoint)", err=True)
+        sys.exit(130)
+    except (RuntimeError, ValueError, TypeError, FileNotFoundError) as exc:
+        raise click.ClickException(str(exc)) from exc
+    if as_json:
+        _echo_json(result)
+        return
+    trainer = result["trainer"]
+    click.echo(f"trained {len(result['episodes'])} episodes from episode {result['first_episode']}: weights version "
+               f"{trainer['version']} ({trainer['dropped']} rollouts dropped); checkpoint in {run_dir}/latest.pt")
 
 
 # ------------------------------------------------------------------------------- planner
@@ -222,7 +323,7 @@ def bench_ros(teams, transports, steps, size, repeats, domain_id, as_json) -> No
 
 
 def register(cli: click.Group) -> None:
-    for command in (run, world, agents, planner):
+    for command in (run, world, agents, planner, train_ros):
         cli.add_command(command)
     bench = cli.commands.get("bench")
     if isinstance(bench, click.Group):

@@ -129,27 +129,43 @@ def replay_command(recording, verify, republish, repair, rate, topics, wait, dom
 
 
 # ------------------------------------------------------------------------------- trainer
+def training_config(preset: str, config_file: str | None, overrides: tuple[str, ...]):
+    """``--preset`` (or a stored ``--train-config``) with ``--set`` overrides on top."""
+    import dataclasses
+
+    from formic_trainer.train import make_config, parse_overrides
+
+    if config_file:
+        from formic_ros.trainer_node import load_train_config
+
+        return dataclasses.replace(load_train_config(config_file), **parse_overrides(overrides))
+    return make_config(preset, **parse_overrides(overrides))
+
+
 @click.command("trainer")
 @click.option("--preset", default="cpu", show_default=True, type=click.Choice(["cpu", "paper"]))
 @click.option("--run-dir", type=click.Path(file_okay=False), default="runs/formic-ros", show_default=True,
               help="Checkpoints (latest.pt) and TensorBoard logs; resumed unless --fresh.")
 @click.option("--fresh", is_flag=True, help="Ignore an existing checkpoint in --run-dir.")
+@click.option("--train-config", type=click.Path(exists=True, dir_okay=False),
+              help="Start from this training configuration (a run directory's config.json) instead of --preset.")
 @click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE", help="Override a training field.")
 @click.option("--max-updates", type=int, help="Stop after this many updates (default: at Ctrl-C or SIGTERM).")
+@click.option("--max-rollouts", type=int, help="Stop after this many rollouts, learned from or dropped.")
 @click.option("--max-lag", default=4, show_default=True,
               help="Learn from rollouts at most this many weights versions old; drop older ones.")
 @click.option("--namespace", default="/formic", show_default=True, help=NAMESPACE_HELP)
 @click.option("--domain-id", type=int, help=DOMAIN_HELP)
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object at the end.")
-def trainer_command(preset, run_dir, fresh, overrides, max_updates, max_lag, namespace, domain_id, as_json) -> None:
+def trainer_command(preset, run_dir, fresh, train_config, overrides, max_updates, max_rollouts, max_lag, namespace,
+                    domain_id, as_json) -> None:
     """The trainer node: learn from the hosts' rollouts, broadcast versioned weights."""
     from formic_ros.trainer_node import serve_trainer
-    from formic_trainer.train import make_config, parse_overrides
 
     try:
-        cfg = make_config(preset, **parse_overrides(overrides))
+        cfg = training_config(preset, train_config, overrides)
         result = serve_trainer(cfg, Path(run_dir), resume=not fresh, namespace=namespace, domain_id=domain_id,
-                               max_updates=max_updates, max_lag=max_lag, log=_log)
+                               max_updates=max_updates, max_rollouts=max_rollouts, max_lag=max_lag, log=_log)
     except (TypeError, ValueError) as exc:
         raise click.ClickException(str(exc)) from exc
     if as_json:

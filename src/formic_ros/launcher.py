@@ -8,6 +8,9 @@ SIGKILL to the child's whole process group, each after a grace period, and every
 reaped. The world waits for every agent before step 0 (discovery; with ``--record`` also for
 the recorder's subscriptions), plays the episode and prints its summary as one JSON line,
 which the launcher reads from the world's stdout.
+
+``formic train-ros`` (:func:`launch_training`) starts distributed training the same way: the
+trainer node, the world in training mode and one learning host.
 """
 
 from __future__ import annotations
@@ -21,8 +24,10 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from formic_agent.registry import DEFAULT_MODEL, TeamAssignment, parse_team
 from formic_world import Scenario
@@ -30,9 +35,13 @@ from formic_world import Scenario
 from . import qos
 from .env import check_domain_id, ros_environment
 
+if TYPE_CHECKING:
+    from formic_trainer.train import TrainConfig
+
 SHARED_MARK_POLICIES = ("csaf", "csaf11", "cardinality")  # one team's marks live in one process
 STOP_GRACE_S = (5.0, 3.0)  # after SIGINT, after SIGTERM; then SIGKILL
 RECORDER_GRACE_S = (20.0, 5.0)  # the recorder closes its file on SIGINT
+DEFAULT_MAX_LAG = 4  # the trainer node's (formic_ros.trainer_node imports torch)
 HOST_EXIT_S = 10.0  # how long hosts get to leave by themselves after the episode
 PR_SET_PDEATHSIG = 1
 
@@ -246,3 +255,148 @@ def launch(opts: RunOptions) -> dict:
     if opts.record:
         summary["recording"] = opts.record
     return summary
+
+
+# ----------------------------------------------------------------------------- training
+EPISODE_FIELDS = ("episode", "food", "seed", "size", "highway_intensity", "deposit_strength", "missed_actions",
+                  "rejected_actions", "steps_per_s", "state_digest")  # of each episode's summary, kept
+TRAINING_DEADLINE_MS = 120_000.0  # a lockstep step may wait this long for an update (and the trainer for the last)
+
+
+@dataclass
+class TrainRunOptions:
+    config: TrainConfig
+    run_dir: str
+    episodes: int
+    fresh: bool = False
+    switch: str = "chunk"  # when hosts take new weights: after each rollout (on-policy), or per episode
+    namespace: str = qos.DEFAULT_NAMESPACE
+    domain_id: int | None = None
+    deadline_ms: float = TRAINING_DEADLINE_MS
+    startup_timeout_s: float = 120.0
+    viewer_every: int = 0
+    log_dir: str | None = None
+    timeout_s: float | None = None
+    on_episode: Callable[[dict], None] | None = None  # gets each episode's summary as it ends
+
+
+def first_episode(run_dir: str, fresh: bool) -> int:
+    """The global episode a run continues from (what the trainer node resumes to)."""
+    latest = Path(run_dir) / "latest.pt"
+    if fresh or not latest.exists():
+        return 0
+    from formic_agent.checkpoint import read_checkpoint
+
+    return int(read_checkpoint(latest)["progress"]["episode"])
+
+
+def training_commands(opts: TrainRunOptions, config_file: Path, start: int) -> dict[str, list[str]]:
+    """World (training mode), one learning host (batched, the whole team) and the trainer."""
+    common = ["--namespace", opts.namespace, "--train-config", str(config_file)]
+    chunks = math.ceil(opts.config.episode_steps / opts.config.rollout_steps)
+    trainer = ["trainer", *common, "--run-dir", opts.run_dir, "--max-rollouts", str(opts.episodes * chunks),
+               "--max-lag", str(max(DEFAULT_MAX_LAG, chunks)), "--json"]
+    if opts.fresh:
+        trainer.append("--fresh")
+    return {
+        "trainer": trainer,
+        "world": ["world", *common, "--episodes", str(opts.episodes), "--first-episode", str(start),
+                  "--deadline-ms", str(opts.deadline_ms), "--startup-timeout", str(opts.startup_timeout_s),
+                  "--viewer-every", str(opts.viewer_every), "--json"],
+        "host0": ["agents", *common, "--ids", f"0-{opts.config.teams[0] - 1}", "--transport", "batched",
+                  "--switch-weights", opts.switch, "--episodes", str(opts.episodes), "--first-episode", str(start),
+                  "--name", "agent_host_0"],
+    }
+
+
+class JsonLines:
+    """The JSON objects a child prints to a file, one a line, read as they come."""
+
+    def __init__(self, file):
+        self.file, self.offset, self.partial = file, 0, b""
+
+    def new(self) -> list[dict]:
+        """The objects printed since the last call (a line still being written waits)."""
+        self.file.seek(self.offset)
+        data = self.file.read()
+        self.offset += len(data)
+        *lines, self.partial = (self.partial + data).split(b"\n")
+        return [json.loads(line) for line in lines if line.startswith(b"{")]
+
+
+def launch_training(opts: TrainRunOptions) -> dict:
+    """Distributed training: the trainer node, the world (``opts.episodes`` training episodes)
+    and one learning host as separate processes, on the in-process trainer's settings
+    (``opts.config``) and scenario stream; resumes ``run_dir`` unless ``fresh``. Returns each
+    episode's summary (the learning curve: ``EPISODE_FIELDS``) and the trainer's result;
+    children are stopped and reaped in any case."""
+    from .world_node import require_one_world
+
+    cfg = opts.config
+    require_one_world(cfg)
+    check_domain_id(opts.domain_id)
+    env = ros_environment(opts.domain_id)
+    start = first_episode(opts.run_dir, opts.fresh)
+    children: list[Child] = []
+    files = []
+    started = time.monotonic()
+    with tempfile.TemporaryDirectory(prefix="formic-train-") as tmp:
+
+        def output(name: str):
+            if opts.log_dir is None:
+                return sys.stderr
+            Path(opts.log_dir).mkdir(parents=True, exist_ok=True)
+            files.append(open(Path(opts.log_dir) / f"{name}.log", "w"))
+            return files[-1]
+
+        config_file = Path(tmp) / "train_config.json"
+        config_file.write_text(json.dumps(cfg.to_dict()))
+        outs = {name: open(Path(tmp) / f"{name}.json", "w+b") for name in ("trainer", "world")}
+        files.extend(outs.values())
+        commands = training_commands(opts, config_file, start)
+        episodes: list[dict] = []
+        world_lines = JsonLines(outs["world"])
+
+        def collect_episodes() -> None:
+            for summary in world_lines.new():
+                episodes.append({key: summary[key] for key in EPISODE_FIELDS})
+                if opts.on_episode is not None:
+                    opts.on_episode(summary)
+
+        try:
+            for name, args in commands.items():
+                stdout = outs.get(name) or output(name)
+                children.append(spawn(name, args, env, stdout, output(name) if name in outs else subprocess.STDOUT))
+            trainer, world, host = children
+            deadline = None if opts.timeout_s is None else time.monotonic() + opts.timeout_s
+            while world.alive:
+                for child in (trainer, host):
+                    if child.process.poll():
+                        raise RuntimeError(f"{child.name} failed with status {child.process.returncode} (see its log)")
+                if deadline is not None and time.monotonic() > deadline:
+                    raise RuntimeError(f"training did not finish within {opts.timeout_s} s")
+                collect_episodes()
+                try:
+                    world.process.wait(timeout=0.5)
+                except subprocess.TimeoutExpired:
+                    pass
+            if world.process.returncode != 0:
+                raise RuntimeError(f"the world exited with status {world.process.returncode}")
+            collect_episodes()
+            try:  # the trainer leaves by itself after the last rollout's update
+                trainer.process.wait(timeout=opts.deadline_ms / 1e3)
+            except subprocess.TimeoutExpired:
+                raise RuntimeError(f"the trainer did not finish its last update within {opts.deadline_ms / 1e3:g} s") from None
+            if trainer.process.returncode != 0:
+                raise RuntimeError(f"the trainer exited with status {trainer.process.returncode}")
+            result = JsonLines(outs["trainer"]).new()[-1]
+            try:
+                host.process.wait(timeout=HOST_EXIT_S)
+            except subprocess.TimeoutExpired:
+                pass
+        finally:
+            codes = {child.name: child.stop() for child in reversed(children)}
+            for file in files:
+                file.close()
+    return {"run_dir": opts.run_dir, "first_episode": start, "episodes": episodes, "trainer": result,
+            "launch_wall_s": time.monotonic() - started, "exit_codes": codes}

@@ -13,11 +13,16 @@ observations step by step, as the host did, so PPO's ratio is taken against the 
 policy. Recent versions are kept for that (``max_lag``); older rollouts are dropped. An
 episode sent in several chunks continues its LSTM state from the previous chunk. Networks
 with odometry inputs (``nest_input``) cannot train here: a Rollout carries no positions.
+
+The hosts' side is here too: :class:`RolloutCollector` builds Rollout messages and
+:class:`LearningActor` acts as the in-process trainer does (its network, sampler and random
+streams), so one host with the whole team and the trainer node reproduce ``formic train``.
 """
 
 from __future__ import annotations
 
 import copy
+import dataclasses
 import hashlib
 import json
 import signal
@@ -30,13 +35,29 @@ import numpy as np
 import torch
 
 from formic_agent.checkpoint import CheckpointError, read_checkpoint, state_dict_bytes
-from formic_agent.network import N_ACTIONS, N_EXTRA_INPUTS, ForMICNet, NetworkConfig
-from formic_trainer.train import TrainConfig, Trainer, update
+from formic_agent.network import (
+    N_ACTIONS,
+    N_EXTRA_INPUTS,
+    NETWORK_PRESETS,
+    ForMICNet,
+    NetworkConfig,
+    nest_features,
+)
+from formic_agent.policy import AgentBatch
+from formic_trainer.train import (
+    TrainConfig,
+    Trainer,
+    filter_probability,
+    sampling_mask,
+    select_actions,
+    update,
+)
 
 ROLLOUTS = "rollouts"
 WEIGHTS = "weights"
 ROLLOUT_DEPTH = 16
 DEFAULT_MAX_LAG = 4  # weights versions a rollout may lag behind and still be learned from
+SAMPLER_STRIDE = 1_000_003  # sampler seeds of hosts whose first agents differ never meet
 
 
 # ----------------------------------------------------------------------------- hosts' side
@@ -85,6 +106,7 @@ class RolloutCollector:
         if len(self.rewards) != len(self.actions) or not self.actions:
             raise RuntimeError("a rollout needs at least one step, each with its rewards")
         return {
+            "agent_ids": self.agent_ids.astype(np.int64),
             "obs": np.stack([*self.observations, np.asarray(last_observations, dtype=np.float32)]),
             "actions": np.stack(self.actions).astype(np.int64),
             "rewards": np.stack(self.rewards),
@@ -133,6 +155,7 @@ def rollout_arrays(msg) -> dict[str, np.ndarray]:
     if steps < 1 or agents < 1:
         raise ValueError(f"empty rollout ({steps} steps, {agents} agents)")
     return {
+        "agent_ids": field("agent_ids", np.uint32, (agents,)).astype(np.int64),
         "obs": field("observations", np.float32, (steps + 1, agents, channels, size, size)),
         "actions": field("actions", np.uint8, (steps, agents)).astype(np.int64),
         "rewards": field("rewards", np.float32, (steps, agents)),
@@ -153,6 +176,159 @@ def apply_weights(policy, msg) -> int:
     return int(msg.version)
 
 
+def train_config_from_dict(data: dict) -> TrainConfig:
+    """A TrainConfig from its JSON form (a run directory's ``config.json``): lists become
+    the tuples the fields hold, so the config equals the one that was written."""
+    known = {f.name for f in dataclasses.fields(TrainConfig)}
+    unknown = sorted(set(data) - known)
+    if unknown:
+        raise ValueError(f"unknown training settings: {', '.join(unknown)}")
+
+    def tuples(value):
+        return tuple(tuples(v) for v in value) if isinstance(value, list) else value
+
+    return TrainConfig(**{key: tuples(value) for key, value in data.items()})
+
+
+def load_train_config(path: str | Path) -> TrainConfig:
+    return train_config_from_dict(json.loads(Path(path).read_text()))
+
+
+def training_network(cfg: TrainConfig) -> ForMICNet:
+    """The network as the in-process trainer builds it (channels-last memory format: the same
+    format gives the same arithmetic, so a host acts bit for bit as the trainer would)."""
+    config = dataclasses.replace(NETWORK_PRESETS[cfg.network], view_size=cfg.view_size)
+    return ForMICNet(config).to(memory_format=torch.channels_last)
+
+
+def sampling_seed(cfg: TrainConfig, weights_version: int, first_agent: int) -> int:
+    """Seed of a learning host's torch sampler. The in-process trainer seeds its sampler with
+    ``seed`` (``seed + updates`` when it resumes); a host driving the whole team (ids from 0)
+    does the same with the weights version it starts from, so it draws the very same actions.
+    Hosts whose agents start elsewhere get streams of their own."""
+    return cfg.seed + int(weights_version) + SAMPLER_STRIDE * int(first_agent)
+
+
+def trainer_stream(cfg: TrainConfig, weights_version: int) -> np.random.Generator:
+    """The in-process trainer's numpy stream (``Trainer.rng``) at ``weights_version`` updates:
+    ``[seed, 5]`` fresh, ``[seed, 5, updates]`` resumed. It draws, in this order, each
+    episode's filter-annealing choice (:meth:`Learner.episode_draws`), the "replace" filter's
+    replacements while acting, and each update's minibatch permutations (one per epoch)."""
+    key = [cfg.seed, 5] if weights_version == 0 else [cfg.seed, 5, int(weights_version)]
+    return np.random.default_rng(key)
+
+
+def unfiltered_agents(cfg: TrainConfig, stream: np.random.Generator, episode: int) -> np.ndarray:
+    """The episode-start draw of the in-process trainer: which agents (of the whole team, by
+    id) act without the training filter in global episode ``episode``."""
+    return stream.random(sum(cfg.teams)) >= filter_probability(cfg, episode)
+
+
+def allowed_actions(cfg: TrainConfig, train_mask: np.ndarray, unfiltered: np.ndarray) -> np.ndarray:
+    """What the behaviour policy may sample ("mask" mode): the training filter's sampling mask
+    (..., A, 5), everything for the agents (rows A) that act unfiltered this episode."""
+    allowed = sampling_mask(cfg, train_mask)
+    allowed[..., unfiltered, :] = True
+    return allowed
+
+
+class LearningActor:
+    """A host's agents while training, as :class:`formic_trainer.train.Trainer` runs them: its
+    network, one LSTM state per agent, its torch sampler (:func:`select_actions` under the
+    training filter, one generator over the host's agents in id order) and, for the learning
+    agents among them (``cfg.learning_agents``), a :class:`RolloutCollector` per chunk of
+    ``cfg.rollout_steps`` steps.
+
+    The in-process trainer's numpy stream decides each episode's unfiltered agents (filter
+    annealing) and the "replace" filter's replacements, and its update draws from it too. The
+    host keeps a mirror (:func:`trainer_stream`): it draws what the trainer draws while acting
+    and replays each update's permutations after sending the rollout, so host and trainer
+    node agree on every draw, exactly as in one process, when one host drives the whole team.
+
+    Per episode: :meth:`start_episode`; per step :meth:`act`, then :meth:`outcome` with what
+    the next observations carry, which returns the chunk's Rollout message when the chunk is
+    complete (``rollout_steps`` steps, or the episode's end). ``first_episode``: the global
+    episode number of the first episode (a resumed run's)."""
+
+    def __init__(self, cfg: TrainConfig, agent_ids, host: str = "", first_episode: int = 0):
+        self.cfg, self.host = cfg, host
+        self.ids = np.asarray(sorted(agent_ids), dtype=np.int64)
+        self.net = training_network(cfg)
+        if self.net.config.nest_input:
+            raise ValueError("networks with nest_input need odometry, which Rollout messages do not carry")
+        self.learning = (np.arange(len(self.ids)) if cfg.learning_agents < 0
+                         else np.flatnonzero(self.ids < cfg.learning_agents))
+        self.generator = torch.Generator()
+        self.stream: np.random.Generator | None = None  # seeded with the first weights
+        self.version = -1  # weights version loaded (-1: none yet)
+        self.episode = first_episode - 1  # global episode number
+        self.unfiltered: np.ndarray | None = None  # this episode's draw, at its first action
+        self.state = self.net.initial_state(len(self.ids))
+        self.collector: RolloutCollector | None = None
+        self.food = 0.0
+        self.loads = np.zeros(len(self.ids))
+
+    def load_state_dict(self, state_dict: dict) -> None:
+        self.net.load_state_dict(state_dict)
+
+    def load_weights(self, msg) -> int:
+        """Switch to a Weights message; the first one also seeds the samplers."""
+        first = self.version < 0
+        self.version = apply_weights(self, msg)
+        if first:
+            self.generator.manual_seed(sampling_seed(self.cfg, self.version, int(self.ids[0])))
+            self.stream = trainer_stream(self.cfg, self.version)
+        if self.collector is not None and not len(self.collector):
+            self.collector.weights_version = self.version
+        return self.version
+
+    def start_episode(self, loads: np.ndarray) -> None:
+        self.episode += 1
+        self.unfiltered = None
+        self.state = self.net.initial_state(len(self.ids))
+        self._new_chunk(loads)
+
+    def _new_chunk(self, loads: np.ndarray) -> None:
+        self.collector = RolloutCollector(self.ids[self.learning], self.host, self.episode, self.version)
+        self.food = 0.0
+        self.loads = np.asarray(loads, dtype=np.float64)
+
+    @torch.no_grad()
+    def act(self, batch: AgentBatch, train_mask: np.ndarray) -> np.ndarray:
+        """Actions for every agent of the batch (rows in id order, the host's agents); needs
+        weights (:meth:`load_weights`)."""
+        if self.unfiltered is None:
+            self.unfiltered = unfiltered_agents(self.cfg, self.stream, self.episode)[self.ids]
+        obs = torch.from_numpy(np.ascontiguousarray(batch.observations))[None]
+        extra = torch.from_numpy(nest_features(batch.positions, batch.loads, batch.world_shape))[None]
+        logits, _, self.state = self.net(obs, self.state, extra)
+        actions, _, value_mask = select_actions(self.cfg, logits[0], batch.action_mask, train_mask, self.generator,
+                                                self.stream, sample_mask=allowed_actions(self.cfg, train_mask,
+                                                                                         self.unfiltered))
+        rows = self.learning
+        self.collector.add_step(batch.observations[rows], train_mask[rows], batch.queued[rows], actions[rows],
+                                value_mask[rows])
+        return actions
+
+    def outcome(self, batch: AgentBatch, rewards: np.ndarray, done: bool):
+        """The observations after a step (with its rewards); returns the Rollout message when
+        the chunk is complete, else None."""
+        self.collector.add_rewards(rewards[self.learning])
+        loads = np.asarray(batch.loads, dtype=np.float64)
+        self.food += float(np.clip(self.loads - loads, 0.0, None).sum())  # every agent's deliveries
+        self.loads = loads
+        if not done and len(self.collector) < self.cfg.rollout_steps:
+            return None
+        if not len(self.learning):  # none of these agents learns: nothing to send
+            self._new_chunk(loads)
+            return None
+        msg = self.collector.to_message(batch.observations[self.learning], food=self.food)
+        for _ in range(self.cfg.epochs):  # the trainer's update of this chunk draws these
+            self.stream.permutation(len(self.learning))
+        self._new_chunk(loads)
+        return msg
+
+
 # ----------------------------------------------------------------------------- learning
 def scale_rewards(rewards: np.ndarray, scale: float) -> np.ndarray:
     """The trainer's reward scaling, in float64 like the in-process trainer."""
@@ -166,6 +342,9 @@ def behaviour_batch(net: ForMICNet, cfg: TrainConfig, arrays: dict[str, np.ndarr
     log-probabilities, values and the bootstrap value are recomputed one step at a time (as the
     host ran it). Returns (data, LSTM state after the rollout's last step)."""
     steps, agents = arrays["actions"].shape
+    sample_mask = arrays.get("sample_mask")
+    if sample_mask is None:
+        sample_mask = sampling_mask(cfg, arrays["train_mask"])
     obs = torch.from_numpy(np.ascontiguousarray(arrays["obs"]))
     actions = torch.from_numpy(arrays["actions"])
     extra = torch.zeros(1, agents, N_EXTRA_INPUTS)
@@ -177,7 +356,7 @@ def behaviour_batch(net: ForMICNet, cfg: TrainConfig, arrays: dict[str, np.ndarr
         logits, value, (h, c) = net(obs[t][None], (h, c), extra)
         logits = logits[0]
         if cfg.action_filter == "mask":
-            logits = logits.masked_fill(~torch.from_numpy(arrays["train_mask"][t]), -1e9)
+            logits = logits.masked_fill(~torch.from_numpy(sample_mask[t]), -1e9)
         logp[t] = torch.log_softmax(logits, -1).gather(-1, actions[t][:, None])[:, 0].numpy()
         values[t] = value[0].numpy()
     _, next_value, _ = net(obs[steps][None], (h, c), extra)
@@ -189,6 +368,7 @@ def behaviour_batch(net: ForMICNet, cfg: TrainConfig, arrays: dict[str, np.ndarr
         "values": values,
         "rewards": scale_rewards(arrays["rewards"], cfg.reward_scale),
         "train_mask": arrays["train_mask"],
+        "sample_mask": sample_mask,
         "loss_mask": arrays["loss_mask"],
         "value_mask": arrays["value_mask"],
         "h0": h0,
@@ -211,6 +391,8 @@ class Learner:
         self.behaviour = copy.deepcopy(self.trainer.net)  # same memory format: same arithmetic
         self.versions: OrderedDict[int, dict[str, torch.Tensor]] = OrderedDict()
         self.lstm: dict[str, tuple[int, tuple[torch.Tensor, torch.Tensor]]] = {}  # host -> (episode, state)
+        self.episode_food: dict[str, tuple[int, int, float]] = {}  # host -> (episode, steps, food so far)
+        self.unfiltered: dict[str, np.ndarray] = {}  # host -> its episode's unfiltered agents (team ids)
         self.dropped = 0
         self._remember_version()
 
@@ -235,25 +417,52 @@ class Learner:
             return None
         self.behaviour.load_state_dict(behaviour)
         previous = self.lstm.get(host)
-        state = previous[1] if previous is not None and previous[0] == episode else None
+        new_episode = previous is None or previous[0] != episode
+        state = None if new_episode else previous[1]
         if state is not None and state[0].shape[1] != arrays["actions"].shape[1]:
             state = None
+        arrays = {**arrays, "sample_mask": self.episode_draws(host, new_episode, arrays)}
         data, final_state = behaviour_batch(self.behaviour, self.cfg, arrays, state)
         self.lstm[host] = (episode, final_state)
         trainer = self.trainer
         stats = update(trainer.net, trainer.optimizer, self.cfg, data, trainer.rng)
         trainer.updates += 1
         trainer.env_steps += int(arrays["actions"].size)
-        if previous is None or previous[0] != episode:
-            trainer.episode += 1
         self._remember_version()
         stats["lag"] = float(self.version - 1 - weights_version)
         stats["rollout_food"] = float(food)
         for key, value in stats.items():
             trainer.writer.add_scalar(f"ros/{key}", value, trainer.updates)
-        if trainer.updates % self.cfg.checkpoint_every == 0:
-            trainer.save()
+        same = self.episode_food.get(host, (-1, 0, 0.0))
+        steps, total = (same[1], same[2]) if same[0] == episode else (0, 0.0)
+        steps, total = steps + arrays["actions"].shape[0], total + float(food)
+        self.episode_food[host] = (episode, steps, total)
+        if steps >= self.cfg.episode_steps:  # the learning curve and checkpoints, as `formic train` has them
+            stats["episode_food"] = total
+            trainer.writer.add_scalar("train/food_mean", total, trainer.episode)
+            if trainer.episode % self.cfg.checkpoint_every == 0:
+                trainer.save()
         return stats
+
+    def episode_draws(self, host: str, new_episode: bool, arrays: dict[str, np.ndarray]) -> np.ndarray:
+        """What the in-process trainer draws from its stream between two updates, drawn here
+        in the same order, so the update's permutations match it and the hosts' mirrors
+        (:class:`LearningActor`): at an episode's first chunk, which agents act unfiltered
+        (counting the episode); then the "replace" filter's replacements, replayed from the
+        rollout (complete when every agent learns). Returns the chunk's sampling masks."""
+        trainer = self.trainer
+        if new_episode:
+            self.unfiltered[host] = unfiltered_agents(self.cfg, trainer.rng, trainer.episode)
+            trainer.episode += 1
+        if self.cfg.action_filter == "replace":
+            for t, i in zip(*np.nonzero(arrays["value_mask"] == 0)):  # step by step, agents in order
+                trainer.rng.choice(np.flatnonzero(arrays["train_mask"][t, i]))
+        team = self.unfiltered.get(host, np.zeros(0, dtype=bool))
+        ids = arrays.get("agent_ids", np.arange(arrays["actions"].shape[1]))
+        unfiltered = np.zeros(len(ids), dtype=bool)
+        inside = ids < len(team)
+        unfiltered[inside] = team[ids[inside]]
+        return allowed_actions(self.cfg, arrays["train_mask"], unfiltered)
 
     def weights_payload(self) -> tuple[bytes, str]:
         """The current weights as Weights.data bytes and their content id."""
@@ -267,10 +476,12 @@ class Learner:
 
 # ----------------------------------------------------------------------------- the node
 def serve_trainer(cfg: TrainConfig, run_dir: Path, resume: bool = True, namespace: str = "/formic",
-                  domain_id: int | None = None, max_updates: int | None = None,
+                  domain_id: int | None = None, max_updates: int | None = None, max_rollouts: int | None = None,
                   max_lag: int = DEFAULT_MAX_LAG, log: Callable[[str], None] = print) -> dict:
-    """Run node ``trainer`` until SIGINT/SIGTERM (or ``max_updates``); the checkpoint is saved
-    on every exit but a SIGKILL (and every ``cfg.checkpoint_every`` updates, atomically)."""
+    """Run node ``trainer`` until SIGINT/SIGTERM, ``max_updates`` updates or ``max_rollouts``
+    rollouts received (learned or dropped: what a launcher knows its hosts send). The
+    checkpoint is saved on every exit but a SIGKILL (and every ``cfg.checkpoint_every``
+    episodes, atomically)."""
     from formic_interfaces.msg import Rollout, Weights
     from rclpy.duration import Duration
     from rclpy.node import Node
@@ -284,7 +495,7 @@ def serve_trainer(cfg: TrainConfig, run_dir: Path, resume: bool = True, namespac
                              reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
     pending: deque = deque()
     stop: list[bool] = []
-    updates_here = 0
+    updates_here = rollouts_here = 0
     started = time.monotonic()
     try:
         with ros_session(domain_id) as executor:
@@ -303,11 +514,13 @@ def serve_trainer(cfg: TrainConfig, run_dir: Path, resume: bool = True, namespac
 
                 broadcast()
                 log(f"trainer: weights version {learner.version} published; waiting for rollouts")
-                while not stop and (max_updates is None or updates_here < max_updates):
+                while not (stop or (max_updates is not None and updates_here >= max_updates)
+                           or (max_rollouts is not None and rollouts_here >= max_rollouts)):
                     executor.spin_once(timeout_sec=0.0 if pending else 0.1)
                     if not pending:
                         continue
                     msg = pending.popleft()
+                    rollouts_here += 1
                     try:
                         arrays = rollout_arrays(msg)
                     except ValueError as exc:
@@ -321,8 +534,9 @@ def serve_trainer(cfg: TrainConfig, run_dir: Path, resume: bool = True, namespac
                     broadcast()
                     log(f"update {learner.version}: {msg.n_steps}x{msg.n_agents} from {msg.host or '?'} "
                         f"(episode {msg.episode}, lag {stats['lag']:.0f}, food {msg.food:.1f}) "
-                        f"loss {stats['loss']:.3f}")
-                if max_updates is not None:  # the last weights reach the hosts before the node goes
+                        f"loss {stats['loss']:.3f}"
+                        + (f"; episode food {stats['episode_food']:.1f}" if "episode_food" in stats else ""))
+                if not stop:  # the last weights reach the hosts before the node goes
                     publisher.wait_for_all_acked(Duration(seconds=2.0))
             finally:
                 for sig, handler in handlers.items():

@@ -11,6 +11,9 @@ Observations go out batched on ``observations`` when that topic has a subscriber
 on ``agent_K/observation`` only where that topic has one. Actions come in on ``actions``
 (batches, any subset of agents) and ``agent_K/action``; every action is validated, and a bad
 one is rejected with a (rate-limited) log line, never an exception.
+
+Training mode (:func:`serve_training_world`): episode after episode on the scenarios the
+in-process trainer would draw, with the training masks in the observation batches.
 """
 
 from __future__ import annotations
@@ -19,8 +22,8 @@ import json
 import sys
 import time
 from collections import Counter
-from dataclasses import dataclass
-from typing import Callable
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 from formic_interfaces.msg import (
@@ -40,6 +43,9 @@ from formic_world import NO_ACTION, Scenario, StepResult, World
 
 from . import convert, qos
 
+if TYPE_CHECKING:
+    from formic_trainer.train import TrainConfig
+
 RESEND_S = 0.5  # step-0 observations are re-sent this often until every agent has answered
 LISTENER_REFRESH_S = 0.25  # how often the set of per-agent observation subscribers is re-read
 LINGER_S = 0.5  # the node stays up this long after the episode's last messages
@@ -58,6 +64,7 @@ class WorldNodeOptions:
     dt: float = 0.1  # simulated seconds per step (/clock)
     policy_label: str = ""  # which policies drive the team, for the scenario message and summary
     training_masks: bool = False  # fill ObservationBatch.train_masks (SPEC 4 filter)
+    observation_encoding: str = "compact"  # ObservationBatch: "compact" (lossless, ~10x smaller) or "float32"
     require_subscribers: tuple[str, ...] = ()  # topics (e.g. "applied_actions") needing a subscriber before step 0
     progress: bool = False
 
@@ -184,18 +191,15 @@ class EpisodeBook:
 
 
 class WorldNode(Node):
-    """Node ``world`` in the ForMIC namespace; :meth:`run` plays one episode."""
+    """Node ``world`` in the ForMIC namespace; :meth:`run` plays one episode, :meth:`load`
+    sets up the next (a new scenario for the same team size)."""
 
     def __init__(self, scenario: Scenario, options: WorldNodeOptions = WorldNodeOptions()):
         super().__init__("world", namespace=options.namespace)
-        self.scenario = scenario
         self.options = options
-        self.world = World(scenario)
-        n = scenario.config.n_agents
+        n = self.n_agents = scenario.config.n_agents
         self.log = RateLimitedLog(self.get_logger())
-        self.inbox = ActionInbox(n, self.log)
-        self.missed = np.zeros(n, dtype=np.int64)
-        self.last_answered = np.full(n, -1, dtype=np.int64)  # last step each agent answered in time
+        convert.encoding_code(options.observation_encoding)  # an unknown encoding fails here, not at step 0
 
         pub = self.create_publisher
         self.scenario_pub = pub(ScenarioDescription, qos.SCENARIO, qos.LATCHED)
@@ -215,7 +219,19 @@ class WorldNode(Node):
                                      lambda msg, a=a: self._on_agent_action(a, msg), qos.STREAM)
         self._listening: list[int] = []
         self._listening_at = -np.inf
-        self.scenario_pub.publish(convert.scenario_description(scenario, options.policy_label))
+        self.load(scenario)
+
+    def load(self, scenario: Scenario) -> None:
+        """The scenario of the next episode, published (latched) at once."""
+        n = scenario.config.n_agents
+        if n != self.n_agents:
+            raise ValueError(f"a world node serves one team size ({self.n_agents} agents), not {n}")
+        self.scenario = scenario
+        self.world = World(scenario)
+        self.inbox = ActionInbox(n, self.log)
+        self.missed = np.zeros(n, dtype=np.int64)
+        self.last_answered = np.full(n, -1, dtype=np.int64)  # last step each agent answered in time
+        self.scenario_pub.publish(convert.scenario_description(scenario, self.options.policy_label))
 
     # ------------------------------------------------------------------ actions in
     def _on_action_batch(self, msg: ActionBatch) -> None:
@@ -251,7 +267,8 @@ class WorldNode(Node):
         if self.observations_pub.get_subscription_count() > 0:
             train = world.training_action_mask(result.action_mask) if self.options.training_masks else None
             rows = None if missing is None else np.flatnonzero(missing)
-            self.observations_pub.publish(convert.observation_batch(**fields, agent_ids=rows, train_masks=train))
+            self.observations_pub.publish(convert.observation_batch(
+                **fields, agent_ids=rows, train_masks=train, encoding=self.options.observation_encoding))
         listening = self._listeners()
         if missing is not None:
             listening = [a for a in listening if missing[a]]
@@ -260,10 +277,16 @@ class WorldNode(Node):
                 self.agent_obs_pubs[a].publish(msg)
 
     def _publish_state(self, final: bool = False) -> None:
+        """State and clock (volatile: built only while someone subscribes, as building the
+        state costs more than the rest of a step's messages), viewers every k steps (latched:
+        skipped while nobody subscribes, but the last step always goes out)."""
         world, every = self.world, self.options.viewer_every
-        self.state_pub.publish(convert.world_state(world, self.missed))
-        self.clock_pub.publish(convert.clock(world.t, self.options.dt))
-        if every > 0 and (world.t % every == 0 or final):
+        if self.state_pub.get_subscription_count():
+            self.state_pub.publish(convert.world_state(world, self.missed))
+        if self.clock_pub.get_subscription_count():
+            self.clock_pub.publish(convert.clock(world.t, self.options.dt))
+        viewers = (self.score_pub, self.map_pub, self.markers_pub)
+        if every > 0 and (final or world.t % every == 0 and any(p.get_subscription_count() for p in viewers)):
             stamp = convert.sim_time(world.t, self.options.dt)
             self.score_pub.publish(Float64(data=world.score))
             self.map_pub.publish(convert.occupancy_grid(world, stamp))
@@ -331,8 +354,9 @@ class WorldNode(Node):
         self._collect(executor, now + opts.deadline_s, need_all=True)
         return tick
 
-    def run(self, executor) -> dict:
-        """Play the episode; returns the summary (also published, latched, on ``summary``)."""
+    def run(self, executor, last: bool = True) -> dict:
+        """Play the episode; returns the summary (also published, latched, on ``summary``).
+        ``last``: the process leaves afterwards, so the final messages get time to go out."""
         from tqdm import tqdm
 
         opts, world, cfg = self.options, self.world, self.scenario.config
@@ -366,10 +390,11 @@ class WorldNode(Node):
                 bar.update()
         clock.update(ended=time.monotonic(), cpu_to=time.process_time(), started=started)
         self._publish_observations(result)  # done=True: hosts stop answering
-        self._linger(executor)
+        if last:
+            self._linger(executor)
         summary = self._summary(book, clock)
         self.summary_pub.publish(String(data=json.dumps(summary, default=float)))
-        for publisher in (self.applied_pub, self.state_pub, self.summary_pub):
+        for publisher in (self.applied_pub, self.state_pub, self.summary_pub) if last else ():
             if publisher.get_subscription_count():
                 publisher.wait_for_all_acked(Duration(seconds=ACK_TIMEOUT_S))
         self.get_logger().info(
@@ -398,6 +423,52 @@ class WorldNode(Node):
             world_cpu_ms_per_step=(clock["cpu_to"] - clock["cpu_from"]) / max(1, steps) * 1e3,
         )
         return summary
+
+
+def require_one_world(cfg: TrainConfig) -> None:
+    """A world node serves one world: distributed training needs one meta-agent team."""
+    if len(cfg.teams) != 1:
+        raise ValueError(f"distributed training runs one meta-agent world; teams={list(cfg.teams)} "
+                         "(set one team size, e.g. --set teams=16)")
+
+
+def serve_training_world(
+    cfg: TrainConfig,
+    episodes: int,
+    options: WorldNodeOptions,
+    first_episode: int = 0,
+    domain_id: int | None = None,
+    on_episode: Callable[[dict], None] | None = None,
+) -> list[dict]:
+    """Distributed training's world: ``episodes`` episodes, each on a new scenario drawn as the
+    in-process trainer draws them (:func:`formic_trainer.train.sample_scenarios` from the
+    run's scenario stream at ``first_episode``: world size, obstacles, curriculum intensities,
+    training start), with the training masks in the observations. One meta-agent world: the
+    configuration's ``teams`` must hold one team. ``on_episode`` gets each episode's summary
+    (with ``episode``, the global episode number, and the curriculum's intensities)."""
+    from formic_trainer.train import sample_scenarios, scenario_rng
+
+    from .env import ros_session
+
+    require_one_world(cfg)
+    options = replace(options, training_masks=True, policy_label=options.policy_label or "formic:learning")
+    rng = scenario_rng(cfg, first_episode)
+    summaries = []
+    with ros_session(domain_id) as executor:
+        node = None
+        for episode in range(first_episode, first_episode + episodes):
+            (scenario,), highway, deposit = sample_scenarios(cfg, rng, episode)
+            if node is None:
+                node = WorldNode(scenario, options)
+                executor.add_node(node)
+            else:
+                node.load(scenario)
+            summary = node.run(executor, last=episode + 1 == first_episode + episodes)
+            summary.update(episode=episode, highway_intensity=highway, deposit_strength=deposit)
+            summaries.append(summary)
+            if on_episode is not None:
+                on_episode(summary)
+    return summaries
 
 
 def serve_world(
