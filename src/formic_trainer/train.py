@@ -125,8 +125,8 @@ PRESETS = {
         filter_anneal_start=40,
         filter_anneal_end=300,
         filter_final=0.0,
-        curriculum_start=100,
-        curriculum_end=400,
+        curriculum_start=60,
+        curriculum_end=300,
         total_episodes=4000,
     ),
 }
