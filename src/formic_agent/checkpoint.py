@@ -42,6 +42,7 @@ def save_checkpoint(path: str | os.PathLike, net: ForMICNet, **extra: Any) -> No
             torch.save(payload, handle)
             handle.flush()
             os.fsync(handle.fileno())
+        os.chmod(tmp, 0o644)  # mkstemp creates 0600; a model file is meant to be shared
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)

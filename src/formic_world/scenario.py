@@ -128,6 +128,7 @@ class Scenario:
             handle.write(self.to_json())
             handle.flush()
             os.fsync(handle.fileno())
+        os.chmod(tmp, 0o644)  # mkstemp creates 0600; scenario sets are meant to be shared
         os.replace(tmp, path)
 
     @classmethod
