@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -28,7 +27,7 @@ import torch
 import torch.nn.functional as F
 
 from formic_agent.checkpoint import load_network, read_checkpoint, save_checkpoint
-from formic_agent.network import N_EXTRA_INPUTS, NETWORK_PRESETS, ForMICNet, NetworkConfig, nest_features
+from formic_agent.network import N_EXTRA_INPUTS, NETWORK_PRESETS, ForMICNet, nest_features
 from formic_world import Scenario, World, WorldConfig, generate_scenario
 from formic_world.pheromones import curriculum_intensities
 
@@ -398,7 +397,6 @@ class Trainer:
         self.updates = 0
         self.env_steps = 0
         self.seconds = 0.0
-        self.best_food = -math.inf
         self.generator = torch.Generator().manual_seed(cfg.seed)
         self.rng = np.random.default_rng([cfg.seed, 5])
         latest = self.run_dir / "latest.pt"
@@ -419,7 +417,7 @@ class Trainer:
     def _resume(self, path: Path) -> None:
         payload = read_checkpoint(path)
         stored = payload.get("train_config", {})
-        ignored = {"total_episodes", "threads", "checkpoint_every"}
+        ignored = {"total_episodes", "threads", "checkpoint_every", "init_weights"}
         changed = sorted(k for k, v in self.cfg.to_dict().items()
                          if k not in ignored and k in stored and _plain(stored[k]) != _plain(v))
         if changed:
@@ -432,7 +430,6 @@ class Trainer:
         progress = payload["progress"]
         self.episode, self.updates = progress["episode"], progress["updates"]
         self.env_steps, self.seconds = progress["env_steps"], progress["seconds"]
-        self.best_food = progress.get("best_food", -math.inf)
         self.generator.manual_seed(self.cfg.seed + self.updates)
         self.rng = np.random.default_rng([self.cfg.seed, 5, self.updates])
         self.log(f"resumed from {path}: episode {self.episode}, update {self.updates}")
@@ -443,7 +440,7 @@ class Trainer:
             optimizer=self.optimizer.state_dict(),
             train_config=self.cfg.to_dict(),
             progress={"episode": self.episode, "updates": self.updates, "env_steps": self.env_steps,
-                      "seconds": self.seconds, "best_food": self.best_food},
+                      "seconds": self.seconds},
         )
 
     def run_episode_set(self) -> dict[str, float]:
