@@ -1,0 +1,147 @@
+"""The network, checkpoints, the learned policy and the in-process trainer."""
+
+from __future__ import annotations
+
+import json
+import pickle
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+import torch
+
+from formic_agent.checkpoint import CheckpointError, load_network, save_checkpoint
+from formic_agent.episode import run_episode
+from formic_agent.learned import LearnedPolicy
+from formic_agent.network import NETWORK_PRESETS, ForMICNet, NetworkConfig, count_parameters
+from formic_agent.policy import AgentBatch
+from formic_trainer.train import Trainer, make_config, parse_overrides
+from formic_world import World, WorldConfig, generate_scenario
+
+TINY = dict(teams=(4,), world_sizes=((16, 16),), episode_steps=32, rollout_steps=16, threads=1)
+
+
+def test_paper_network_has_the_papers_size_and_shapes():
+    net = ForMICNet(NETWORK_PRESETS["paper"])
+    assert 4.9e6 < count_parameters(net) < 5.0e6  # SPEC §5: 128/256/512, LSTM 512
+    logits, values, (h, c) = net(torch.zeros(3, 2, 8, 11, 11), net.initial_state(2))
+    assert logits.shape == (3, 2, 5) and values.shape == (3, 2) and h.shape == (1, 2, 512)
+
+
+@pytest.mark.parametrize("view", [5, 11, 21])
+def test_every_field_of_view_builds_and_runs(view):
+    net = ForMICNet(NetworkConfig(conv1=4, conv2=4, fc=8, rnn=8, view_size=view))
+    logits, _, _ = net(torch.zeros(1, 3, 8, view, view), net.initial_state(3))
+    assert logits.shape == (1, 3, 5)
+
+
+def test_checkpoint_round_trip_and_bad_files(tmp_path):
+    net = ForMICNet(NETWORK_PRESETS["cpu-nest"])
+    path = tmp_path / "model.pt"
+    save_checkpoint(path, net, note="x")
+    loaded, payload = load_network(path)
+    assert loaded.config == net.config and payload["note"] == "x"
+    for key, value in net.state_dict().items():
+        assert torch.equal(loaded.state_dict()[key], value)
+    assert not list(tmp_path.glob(".*tmp"))  # atomic write leaves no temporary file
+    (tmp_path / "truncated.pt").write_bytes(path.read_bytes()[:1000])
+    with pytest.raises(CheckpointError, match="not a readable"):
+        load_network(tmp_path / "truncated.pt")
+    (tmp_path / "code.pt").write_bytes(pickle.dumps(subprocess.Popen))  # a pickle naming code
+    with pytest.raises(CheckpointError):
+        load_network(tmp_path / "code.pt")
+    torch.save({"format": "something else"}, tmp_path / "other.pt")
+    with pytest.raises(CheckpointError, match="not a ForMIC checkpoint"):
+        load_network(tmp_path / "other.pt")
+
+
+def test_learned_actions_do_not_depend_on_how_agents_are_batched():
+    """Sampling is keyed per (seed, step, agent): one batch or two halves act identically."""
+    torch.manual_seed(0)
+    net = ForMICNet(NETWORK_PRESETS["cpu-nest"])
+    world = World(generate_scenario(WorldConfig(height=24, width=24, n_agents=8), 3))
+    whole, halves = LearnedPolicy(net), LearnedPolicy(net)
+    whole.reset(8, 5)
+    halves.reset(8, 5)
+    result = world.reset(world.scenario)
+    for _ in range(20):
+        batch = AgentBatch.from_world(world, observations=result.observations, action_mask=result.action_mask)
+        a = whole.act(batch)
+        first = AgentBatch.from_world(world, np.arange(4), result.observations, result.action_mask)
+        second = AgentBatch.from_world(world, np.arange(4, 8), result.observations, result.action_mask)
+        b = np.concatenate([halves.act(first), halves.act(second)])
+        assert a.tolist() == b.tolist()
+        result = world.step(a)
+
+
+def test_trainer_resumes_exactly_where_its_checkpoint_left(tmp_path):
+    cfg = make_config("cpu", **TINY)
+    first = Trainer(cfg, tmp_path, resume=False, log=lambda *_: None)
+    first.train(episodes=2)
+    saved = {k: v.clone() for k, v in first.net.state_dict().items()}
+    resumed = Trainer(cfg, tmp_path, resume=True, log=lambda *_: None)
+    assert resumed.episode == 2 and resumed.updates == first.updates
+    for key, value in saved.items():
+        assert torch.equal(resumed.net.state_dict()[key], value)
+    with pytest.raises(ValueError, match="different settings"):
+        Trainer(make_config("cpu", **{**TINY, "lr": 1e-3}), tmp_path, resume=True, log=lambda *_: None)
+
+
+def test_a_killed_training_process_resumes_from_its_last_checkpoint(tmp_path):
+    """SIGKILL mid-run loses nothing before the last checkpoint; the run then continues."""
+    run_dir = tmp_path / "run"
+    sets = ["--set", "teams=4", "--set", "episode_steps=32", "--set", "rollout_steps=16", "--set", "threads=1"]
+    base = [sys.executable, "-m", "formic_cli.main", "train", "--preset", "cpu", "--run-dir", str(run_dir), *sets]
+    process = subprocess.Popen([*base, "--episodes", "1000"], stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    try:
+        start = time.monotonic()
+        while not (run_dir / "latest.pt").exists() and time.monotonic() - start < 120:
+            time.sleep(0.2)
+        assert (run_dir / "latest.pt").exists(), "no checkpoint written"
+        process.kill()
+    finally:
+        process.kill()
+        process.wait(timeout=30)
+    before = torch.load(run_dir / "latest.pt", weights_only=True)["progress"]["episode"]
+    assert before >= 1
+    done = subprocess.run([*base, "--episodes", "1"], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert f"resumed from {run_dir / 'latest.pt'}: episode {before}" in done.stdout
+    after = torch.load(run_dir / "latest.pt", weights_only=True)["progress"]["episode"]
+    assert after == before + 1
+
+
+def test_overrides_are_typed_and_checked():
+    assert parse_overrides(["lr=0.001", "pheromones=false", "teams=8,16", "network=cpu"]) == {
+        "lr": 0.001, "pheromones": False, "teams": (8, 16), "network": "cpu"}
+    with pytest.raises(ValueError, match="TrainConfig field"):
+        parse_overrides(["nonsense=1"])
+    with pytest.raises(ValueError, match="true/false"):
+        parse_overrides(["pheromones=maybe"])
+
+
+def test_formic_sim_json_matches_the_in_process_episode(tmp_path):
+    out = subprocess.run(
+        [sys.executable, "-m", "formic_cli.main", "sim", "--policy", "random", "--agents", "6", "--size", "24",
+         "--steps", "60", "--seed", "4", "--out", str(tmp_path), "--json"],
+        capture_output=True, text=True, timeout=120,
+    )
+    assert out.returncode == 0, out.stderr
+    summary = json.loads(out.stdout)
+    scenario = generate_scenario(WorldConfig(height=24, width=24, n_agents=6, episode_steps=60), 4)
+    result = run_episode(scenario, "random")
+    assert summary["food"] == result.food
+    assert summary["state_digest"] == result.world.state_digest()
+    assert (tmp_path / "final.png").exists()
+    assert len(summary["per_agent"]["delivered"]) == 6
+
+
+def test_missing_model_is_a_clear_error(tmp_path):
+    out = subprocess.run(
+        [sys.executable, "-m", "formic_cli.main", "sim", "--policy", "formic", "--model", str(tmp_path / "none.pt"),
+         "--agents", "4", "--size", "16", "--steps", "5", "--out", str(tmp_path)],
+        capture_output=True, text=True, timeout=120,
+    )
+    assert out.returncode != 0 and "none.pt" in out.stderr
