@@ -44,12 +44,23 @@ def _split(text: str, kind, option: str) -> list:
               help="The learned policy sees an empty pheromone channel (the paper's ablation).")
 @click.option("--workers", default=2, show_default=True, type=click.IntRange(1),
               help="Episodes run in parallel processes (1: in this process; fairest for timings).")
+@click.option("--report", "report_only", is_flag=True,
+              help="Run nothing: rebuild results, figures and results.md from every episode in OUT.")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
 @click.pass_context
 def eval_command(ctx, algorithms, sizes, teams, obstacles, envs, scenarios, seed, steps, out, model, greedy,
-                 no_pheromones, workers, as_json) -> None:
+                 no_pheromones, workers, report_only, as_json) -> None:
     """Run every algorithm on the same stored scenarios; write CSV/JSON results, figures and
     OUT/results.md (ours beside the paper's numbers). Interrupt with Ctrl-C and rerun to resume."""
+    if report_only:
+        from formic_eval.runner import report_everything
+
+        summary = report_everything(Path(out))
+        if as_json:
+            click.echo(json.dumps(summary, default=float))
+        else:
+            click.echo(f"report: {summary['files'].get('report', '(no episodes)')}")
+        return
     from formic_agent.registry import POLICY_NAMES
     from formic_eval import evaluate, generate_matrix, load_matrix, settings_grid
     from formic_eval.matrix import ENVIRONMENTS

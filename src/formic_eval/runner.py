@@ -215,9 +215,7 @@ def evaluate(
 
     Returns the summary that ``formic eval --json`` prints (cells without their curves).
     """
-    from .paper import markdown_report
-    from .plots import plot_all
-    from .results import aggregate, public_cell, write_results
+    from .results import aggregate, public_cell
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -241,11 +239,37 @@ def evaluate(
         "wall_s": round(stats.wall_s, 3),
         "log": {"path": str(log.path), "torn_line_removed": log.repaired, "unreadable_lines": log.skipped_lines},
     }
-    files = {"episodes_jsonl": str(log.path), "scenarios": source}
-    if cells:
-        files |= write_results(out, records, cells, run)
-        files["figures"] = plot_all(cells, out)
-        report = out / "results.md"
-        report.write_text(markdown_report(cells, run))
-        files["report"] = str(report)
+    files = {"episodes_jsonl": str(log.path), "scenarios": source} | write_report(out, records, cells, run)
+    return {"out": str(out)} | run | {"cells": [public_cell(c) for c in cells], "files": files}
+
+
+def write_report(out: Path, records: list[dict], cells: list[dict], run: dict) -> dict:
+    """Results (CSV/JSON), figures and results.md for these cells."""
+    from .paper import markdown_report
+    from .plots import plot_all
+    from .results import write_results
+
+    if not cells:
+        return {}
+    files = write_results(out, records, cells, run)
+    files["figures"] = plot_all(cells, out)
+    report = out / "results.md"
+    report.write_text(markdown_report(cells, run))
+    files["report"] = str(report)
+    return files
+
+
+def report_everything(out: Path, workers: str = "1 or 2") -> dict:
+    """Rebuild the results from every episode logged in OUT (several calls with different
+    algorithms or settings into one directory end up in one report); runs nothing."""
+    from .results import aggregate, public_cell
+
+    out = Path(out)
+    log = EpisodeLog(out / "episodes.jsonl")
+    records = list(log.load().values())
+    cells = aggregate(records)
+    run = {"algorithms": sorted({r["algorithm"] for r in records}), "scenarios": str(out / "scenarios"),
+           "episodes": {"total": len(records), "done": len(records), "computed": 0, "reused": len(records)},
+           "workers": workers, "report_only": True}
+    files = write_report(out, records, cells, run)
     return {"out": str(out)} | run | {"cells": [public_cell(c) for c in cells], "files": files}
