@@ -199,6 +199,15 @@ def _wait_for_world(world: Child, recorder: Child | None, drivers: list[Child], 
             pass
 
 
+
+def child_output(log_dir, name: str, files: list):
+    """Where a child process writes: stderr, or ``LOG_DIR/NAME.log`` (kept in ``files`` to close)."""
+    if log_dir is None:
+        return sys.stderr
+    Path(log_dir).mkdir(parents=True, exist_ok=True)
+    files.append(open(Path(log_dir) / f"{name}.log", "w"))
+    return files[-1]
+
 def launch(opts: RunOptions) -> dict:
     """Play one episode across processes; returns the world's summary (plus launch details).
     Raises RuntimeError when the world fails; children are stopped and reaped in any case."""
@@ -214,11 +223,7 @@ def launch(opts: RunOptions) -> dict:
     with tempfile.TemporaryDirectory(prefix="formic-run-") as tmp:
 
         def output(name: str):
-            if opts.log_dir is None:
-                return sys.stderr
-            Path(opts.log_dir).mkdir(parents=True, exist_ok=True)
-            files.append(open(Path(opts.log_dir) / f"{name}.log", "w"))
-            return files[-1]
+            return child_output(opts.log_dir, name, files)
 
         scenario_file = Path(tmp) / "scenario.json"
         opts.scenario.save(scenario_file)
@@ -343,11 +348,7 @@ def launch_training(opts: TrainRunOptions) -> dict:
     with tempfile.TemporaryDirectory(prefix="formic-train-") as tmp:
 
         def output(name: str):
-            if opts.log_dir is None:
-                return sys.stderr
-            Path(opts.log_dir).mkdir(parents=True, exist_ok=True)
-            files.append(open(Path(opts.log_dir) / f"{name}.log", "w"))
-            return files[-1]
+            return child_output(opts.log_dir, name, files)
 
         config_file = Path(tmp) / "train_config.json"
         config_file.write_text(json.dumps(cfg.to_dict()))
