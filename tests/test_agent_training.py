@@ -17,7 +17,7 @@ from formic_agent.episode import run_episode
 from formic_agent.learned import LearnedPolicy
 from formic_agent.network import NETWORK_PRESETS, ForMICNet, NetworkConfig, count_parameters
 from formic_agent.policy import AgentBatch
-from formic_trainer.train import Trainer, make_config, parse_overrides
+from formic_trainer.train import Trainer, make_config, parse_overrides, share_rewards
 from formic_world import World, WorldConfig, generate_scenario
 
 TINY = dict(teams=(4,), world_sizes=((16, 16),), episode_steps=32, rollout_steps=16, threads=1)
@@ -120,6 +120,11 @@ def test_overrides_are_typed_and_checked():
         parse_overrides(["nonsense=1"])
     with pytest.raises(ValueError, match="true/false"):
         parse_overrides(["pheromones=maybe"])
+    assert parse_overrides(["world_sizes=40-96,128-128"]) == {"world_sizes": ((40, 96), (128, 128))}
+    with pytest.raises(ValueError, match="MIN-MAX"):
+        parse_overrides(["world_sizes=40:96"])
+    with pytest.raises(ValueError, match="cannot be set"):
+        parse_overrides(["obstacle_range=0,1"])
 
 
 def test_formic_sim_json_matches_the_in_process_episode(tmp_path):
@@ -145,3 +150,14 @@ def test_missing_model_is_a_clear_error(tmp_path):
         capture_output=True, text=True, timeout=120,
     )
     assert out.returncode != 0 and "none.pt" in out.stderr
+
+
+def test_team_reward_mixes_each_reward_with_the_team_mean():
+    rewards = np.array([10.0, -0.05, -0.05, -1.0])
+    assert share_rewards(rewards, 0.0) is rewards  # off: the paper's individual rewards untouched
+    team_mean = np.float32(rewards.astype(np.float32).mean())
+    mixed = share_rewards(rewards, 0.5)
+    assert mixed.dtype == np.float64 and (mixed.astype(np.float32) == mixed).all()  # float32 values
+    np.testing.assert_allclose(mixed, 0.5 * rewards + 0.5 * team_mean, rtol=1e-6)
+    np.testing.assert_allclose(share_rewards(rewards, 1.0), np.full(4, team_mean), rtol=1e-6)
+    assert mixed.sum() == pytest.approx(rewards.sum(), rel=1e-6)  # sharing moves reward, never adds it

@@ -27,7 +27,8 @@ from formic_trainer.train import MetaAgents, Trainer, make_config, sample_scenar
 
 pytestmark = pytest.mark.filterwarnings("ignore::UserWarning", "ignore:module 'sre_:DeprecationWarning")
 
-CFG = make_config("cpu", seed=3, teams=(4,), world_sizes=((20, 20),), episode_steps=32, rollout_steps=16)
+CFG = make_config("cpu", seed=3, teams=(4,), world_sizes=((20, 20),), episode_steps=32, rollout_steps=16,
+                  team_reward=0.25)
 
 
 def quiet(_text: str) -> None:

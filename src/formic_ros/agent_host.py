@@ -257,7 +257,9 @@ class AgentHost:
         actions = np.zeros(len(batch), dtype=np.int64)
         for policy, ids in self.groups:
             rows = np.flatnonzero(np.isin(batch.agent_ids, ids))
-            if len(rows):
+            if len(rows) == len(batch):
+                actions[:] = policy.act(batch)  # one policy drives every row: no copy
+            elif len(rows):
                 actions[rows] = policy.act(select(batch, rows))
         self.answered_step, self.answer_ids, self.answer = step, batch.agent_ids, actions
         self.collecting, self.gathered = -1, {}
@@ -420,8 +422,8 @@ class LearningHost:
         if not self.playing:
             self._start_episode(batch)
         else:
-            rewards = convert.read(msg.rewards, np.float32)[rows]
-            rollout = self.actor.outcome(batch, rewards, bool(msg.done))
+            team_rewards = convert.read(msg.rewards, np.float32)  # every agent's: for team_reward
+            rollout = self.actor.outcome(batch, team_rewards, rows, bool(msg.done))
             if rollout is not None:
                 self.rollouts_pub.publish(rollout)
                 self.episode_rollouts += 1

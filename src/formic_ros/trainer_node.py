@@ -50,6 +50,7 @@ from formic_trainer.train import (
     filter_probability,
     sampling_mask,
     select_actions,
+    share_rewards,
     update,
 )
 
@@ -310,9 +311,10 @@ class LearningActor:
                                 value_mask[rows])
         return actions
 
-    def outcome(self, batch: AgentBatch, rewards: np.ndarray, done: bool):
-        """The observations after a step (with its rewards); returns the Rollout message when
-        the chunk is complete, else None."""
+    def outcome(self, batch: AgentBatch, team_rewards: np.ndarray, rows: np.ndarray, done: bool):
+        """The observations after a step (``team_rewards``: every agent's; ``rows``: this
+        host's); returns the Rollout message when the chunk is complete, else None."""
+        rewards = share_rewards(team_rewards, self.cfg.team_reward)[rows]
         self.collector.add_rewards(rewards[self.learning])
         loads = np.asarray(batch.loads, dtype=np.float64)
         self.food += float(np.clip(self.loads - loads, 0.0, None).sum())  # every agent's deliveries

@@ -18,6 +18,7 @@ in-process trainer would draw, with the training masks in the observation batche
 
 from __future__ import annotations
 
+import functools
 import json
 import sys
 import time
@@ -371,10 +372,13 @@ class WorldNode(Node):
         mode = f"free-running at {opts.rate_hz} Hz" if opts.rate_hz else deadline
         self.get_logger().info(f"episode: {cfg.height}x{cfg.width}, {cfg.n_agents} agents, {horizon} steps, "
                                f"seed {self.scenario.seed}, {mode}")
+        finish = None  # the last step's bookkeeping, done while the agents choose the next actions
         with tqdm(total=horizon, disable=not opts.progress, file=sys.stderr, unit="step", leave=False) as bar:
             for t in range(horizon):
                 self.inbox.open(t)
                 self._publish_observations(result)
+                if finish is not None:
+                    finish()
                 t0 = time.monotonic()
                 tick = self._await_actions(executor, result, started, tick)
                 self._count_misses(t)
@@ -382,14 +386,15 @@ class WorldNode(Node):
                 t1 = time.monotonic()
                 loads_before, queued_before = world.loads.copy(), world.queued.copy()
                 result = world.step(actions)
-                book.record(t, world, loads_before, queued_before, t1 - t0, time.monotonic() - t1)
-                self.applied_pub.publish(convert.applied_actions(t, actions))
-                self._publish_state(final=t + 1 == horizon)
+                finish = functools.partial(self._finish_step, book, t, actions, loads_before, queued_before,
+                                           t1 - t0, time.monotonic() - t1, final=t + 1 == horizon)
                 if t == 0:  # speed is measured from here: start-up and discovery excluded
                     clock = {"stepping_from": time.monotonic(), "cpu_from": time.process_time()}
                 bar.update()
-        clock.update(ended=time.monotonic(), cpu_to=time.process_time(), started=started)
         self._publish_observations(result)  # done=True: hosts stop answering
+        if finish is not None:
+            finish()
+        clock.update(ended=time.monotonic(), cpu_to=time.process_time(), started=started)
         if last:
             self._linger(executor)
         summary = self._summary(book, clock)
@@ -402,6 +407,15 @@ class WorldNode(Node):
             f"{sum(self.inbox.rejected.values())} rejected, {summary['steps_per_s']:.0f} steps/s"
         )
         return summary
+
+    def _finish_step(self, book: EpisodeBook, t: int, actions: np.ndarray, loads_before: np.ndarray,
+                     queued_before: np.ndarray, wait_s: float, step_s: float, final: bool) -> None:
+        """Step ``t``'s bookkeeping and messages (applied actions, state, viewers). The world
+        has not moved since step ``t``, so this runs after the next observations went out,
+        while the agents think: off the lockstep's critical path."""
+        book.record(t, self.world, loads_before, queued_before, wait_s, step_s)
+        self.applied_pub.publish(convert.applied_actions(t, actions))
+        self._publish_state(final=final)
 
     def _summary(self, book: EpisodeBook, clock: dict) -> dict:
         """``formic sim``'s summary plus what the distributed run adds."""

@@ -84,6 +84,10 @@ class TrainConfig:
     loss_reduction: str = "sum"  # "sum": gradients of all learning agents are summed (paper)
     normalize_advantages: bool = False
     reward_scale: float = 1.0
+    # Team reward (beyond the paper): each agent's reward becomes (1-f)*own + f*(its world's team
+    # mean). With purely individual rewards, loaded agents crowding the nest cost only the empty
+    # agents they trap; sharing makes the team's throughput part of every agent's return.
+    team_reward: float = 0.0
     # Techniques (the paper's ablation switches)
     action_filter: str = "replace"  # "replace" (paper) | "mask" (mask invalid logits) | "none"
     pheromones: bool = True  # False: train (and test) without pheromones
@@ -95,6 +99,11 @@ class TrainConfig:
     total_episodes: int = 24000  # environment episodes (summed over meta-agents)
     checkpoint_every: int = 1  # episode sets (one episode in every meta-agent world)
     threads: int = 1
+
+    def __post_init__(self) -> None:
+        if len(self.world_sizes) < len(self.teams):
+            raise ValueError(f"{len(self.teams)} teams but {len(self.world_sizes)} world_sizes: give one side "
+                             "range per team (--set world_sizes=40-96,64-128)")
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -167,6 +176,19 @@ def sample_scenarios(cfg: TrainConfig, rng: np.random.Generator,
     return scenarios, highway, deposit
 
 
+def share_rewards(rewards: np.ndarray, fraction: float) -> np.ndarray:
+    """Mix one world's per-agent rewards with their mean (``team_reward``).
+
+    Mixed in float32, as the ROS observation messages carry rewards, and returned as float64
+    for the float64 reward scaling both trainers share, so distributed training stays exact.
+    """
+    if fraction == 0.0:
+        return rewards
+    team = np.asarray(rewards, dtype=np.float32)
+    mixed = np.float32(1.0 - fraction) * team + np.float32(fraction) * team.mean(dtype=np.float32)
+    return mixed.astype(np.float64)
+
+
 class MetaAgents:
     """All training worlds, stepped together so one forward pass serves every agent."""
 
@@ -204,7 +226,7 @@ class MetaAgents:
         rewards, food = [], []
         for w, lo, hi in zip(self.worlds, self.offsets[:-1], self.offsets[1:]):
             result = w.step(actions[lo:hi])
-            rewards.append(result.rewards)
+            rewards.append(share_rewards(result.rewards, self.cfg.team_reward))
             food.append(result.food)
         return np.concatenate(rewards), np.array(food)
 
@@ -566,8 +588,13 @@ def parse_overrides(pairs: tuple[str, ...] | list[str]) -> dict:
             if text.lower() not in ("true", "false", "1", "0", "yes", "no"):
                 raise ValueError(f"{key} expects true/false, got {text!r}")
             out[key] = text.lower() in ("true", "1", "yes")
-        elif isinstance(current, tuple) and key == "teams":
+        elif key == "teams":
             out[key] = tuple(int(v) for v in text.split(","))
+        elif key == "world_sizes":  # one MIN-MAX side range per team: 40-96,64-128
+            try:
+                out[key] = tuple((int(lo), int(hi)) for lo, hi in (r.split("-") for r in text.split(",")))
+            except ValueError:
+                raise ValueError(f"world_sizes expects MIN-MAX side ranges, one per team (40-96,64-128), got {text!r}") from None
         elif isinstance(current, tuple):
             raise ValueError(f"{key} cannot be set from the command line")
         else:
