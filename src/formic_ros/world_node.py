@@ -48,6 +48,7 @@ if TYPE_CHECKING:
     from formic_trainer.train import TrainConfig
 
 RESEND_S = 0.5  # step-0 observations are re-sent this often until every agent has answered
+STEP_RESEND_S = 0.25  # later steps: re-sent to the agents that have not answered after this long
 LISTENER_REFRESH_S = 0.25  # how often the set of per-agent observation subscribers is re-read
 LINGER_S = 0.5  # the node stays up this long after the episode's last messages
 ACK_TIMEOUT_S = 3.5  # at the end, how long subscribers get to acknowledge the last messages
@@ -294,16 +295,17 @@ class WorldNode(Node):
             self.markers_pub.publish(convert.agent_markers(world, stamp))
 
     # ---------------------------------------------------------------------- waiting
-    def _collect(self, executor, deadline: float, need_all: bool, resend=None) -> None:
-        """Spin until every agent answered (``need_all``) or ``deadline`` (monotonic s)."""
-        next_resend = time.monotonic() + RESEND_S
+    def _collect(self, executor, deadline: float, need_all: bool, resend=None, resend_s: float = RESEND_S) -> None:
+        """Spin until every agent answered (``need_all``) or ``deadline`` (monotonic s);
+        ``resend`` every ``resend_s`` meanwhile (an observation lost under load)."""
+        next_resend = time.monotonic() + resend_s
         while not (need_all and self.inbox.received.all()):
             now = time.monotonic()
             if now >= deadline:
                 return
             if resend is not None and now >= next_resend:
                 resend()
-                next_resend = now + RESEND_S
+                next_resend = now + resend_s
             executor.spin_once(timeout_sec=min(deadline - now, next_resend - now, 0.1))
 
     def _wait_for_subscribers(self, executor) -> None:
@@ -352,7 +354,8 @@ class WorldNode(Node):
             tick = max(tick + 1.0 / opts.rate_hz, now)
             self._collect(executor, tick, need_all=False)
             return tick
-        self._collect(executor, now + opts.deadline_s, need_all=True)
+        self._collect(executor, now + opts.deadline_s, need_all=True,
+                      resend=lambda: self._publish_observations(result, ~self.inbox.received), resend_s=STEP_RESEND_S)
         return tick
 
     def run(self, executor, last: bool = True) -> dict:
