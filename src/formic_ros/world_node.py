@@ -417,7 +417,8 @@ class WorldNode(Node):
         has not moved since step ``t``, so this runs after the next observations went out,
         while the agents think: off the lockstep's critical path."""
         book.record(t, self.world, loads_before, queued_before, wait_s, step_s)
-        self.applied_pub.publish(convert.applied_actions(t, actions))
+        if self.applied_pub.get_subscription_count():  # volatile: nobody can read it later
+            self.applied_pub.publish(convert.applied_actions(t, actions))
         self._publish_state(final=final)
 
     def _summary(self, book: EpisodeBook, clock: dict) -> dict:

@@ -107,5 +107,7 @@ class ObservationBuilder:
         nc = np.clip(neighbours[..., 1], 0, width - 1)
         free = inside & (w.grid[nr, nc] == FREE)
         k_idx, _ = np.nonzero(free)
-        np.maximum.at(self.maps, (channel[k_idx], nr[free] + r, nc[free] + r), 1.0)
-        np.maximum.at(self.maps, (channel, entry[:, 0] + r, entry[:, 1] + r), value)
+        # Where cells coincide the larger value wins: entry cells are distinct within a channel
+        # (queue strips never overlap), and the neighbours' 1.0, drawn last, is the maximum.
+        self.maps[channel, entry[:, 0] + r, entry[:, 1] + r] = value
+        self.maps[channel[k_idx], nr[free] + r, nc[free] + r] = 1.0
