@@ -11,8 +11,10 @@ node recomputes what the network said at the time (log-probabilities, values, th
 value) by running the weights version that chose the actions (``weights_version``) over the
 observations step by step, as the host did, so PPO's ratio is taken against the behaviour
 policy. Recent versions are kept for that (``max_lag``); older rollouts are dropped. An
-episode sent in several chunks continues its LSTM state from the previous chunk. Networks
-with odometry inputs (``nest_input``) cannot train here: a Rollout carries no positions.
+episode sent in several chunks continues its LSTM state from the previous chunk. The hosts
+also send what only they know exactly: the sampling masks their agents acted under (with
+several hosts the trainer cannot re-draw which agents acted unfiltered) and, for networks with
+the odometry input (``nest_input``), those inputs.
 
 The hosts' side is here too: :class:`RolloutCollector` builds Rollout messages and
 :class:`LearningActor` acts as the in-process trainer does (its network, sampler and random
@@ -80,15 +82,23 @@ class RolloutCollector:
         self.train_masks: list[np.ndarray] = []
         self.loss_mask: list[np.ndarray] = []
         self.value_mask: list[np.ndarray] = []
+        self.sample_masks: list[np.ndarray] = []
+        self.extra: list[np.ndarray] = []
 
     def __len__(self) -> int:
         return len(self.actions)
 
     def add_step(self, observations: np.ndarray, train_masks: np.ndarray, queued: np.ndarray,
-                 actions: np.ndarray, value_mask: np.ndarray | None = None) -> None:
+                 actions: np.ndarray, value_mask: np.ndarray | None = None, sample_mask: np.ndarray | None = None,
+                 extra: np.ndarray | None = None) -> None:
         """One decision: observations (A, C, V, V), training masks (A, 5), queued (A,) (a
-        queued agent's step is masked out of the losses), actions (A,), and value_mask (A,)
-        (0 where the action filter replaced the sampled action)."""
+        queued agent's step is masked out of the losses), actions (A,), value_mask (A,) (0
+        where the action filter replaced the sampled action), and optionally the sampling mask
+        (A, 5) and the odometry inputs (A, 4) (give them at every step or never)."""
+        if sample_mask is not None:
+            self.sample_masks.append(np.asarray(sample_mask, dtype=bool))
+        if extra is not None:
+            self.extra.append(np.asarray(extra, dtype=np.float32))
         self.observations.append(np.asarray(observations, dtype=np.float32))
         self.train_masks.append(np.asarray(train_masks, dtype=bool))
         self.loss_mask.append(~np.asarray(queued, dtype=bool))
@@ -102,10 +112,17 @@ class RolloutCollector:
             raise RuntimeError("add_rewards must follow add_step, once per step")
         self.rewards.append(np.asarray(rewards, dtype=np.float32))
 
-    def arrays(self, last_observations: np.ndarray) -> dict[str, np.ndarray]:
+    def arrays(self, last_observations: np.ndarray, last_extra: np.ndarray | None = None) -> dict[str, np.ndarray]:
         """The chunk as arrays: what :func:`rollout_arrays` returns for its message."""
         if len(self.rewards) != len(self.actions) or not self.actions:
             raise RuntimeError("a rollout needs at least one step, each with its rewards")
+        optional = {}
+        if self.sample_masks:
+            optional["sample_mask"] = np.stack(self.sample_masks)
+        if self.extra:
+            if last_extra is None:
+                raise RuntimeError("a rollout with odometry inputs needs the last frame's (last_extra)")
+            optional["extra"] = np.stack([*self.extra, np.asarray(last_extra, dtype=np.float32)])
         return {
             "agent_ids": self.agent_ids.astype(np.int64),
             "obs": np.stack([*self.observations, np.asarray(last_observations, dtype=np.float32)]),
@@ -114,12 +131,13 @@ class RolloutCollector:
             "train_mask": np.stack(self.train_masks),
             "loss_mask": np.stack(self.loss_mask).astype(np.float32),
             "value_mask": np.stack(self.value_mask).astype(np.float32),
+            **optional,
         }
 
-    def to_message(self, last_observations: np.ndarray, food: float = 0.0):
+    def to_message(self, last_observations: np.ndarray, food: float = 0.0, last_extra: np.ndarray | None = None):
         from formic_interfaces.msg import Rollout
 
-        a = self.arrays(last_observations)
+        a = self.arrays(last_observations, last_extra)
         frames, agents, channels, size, _ = a["obs"].shape
         return Rollout(
             weights_version=self.weights_version, host=self.host, episode=self.episode,
@@ -131,6 +149,8 @@ class RolloutCollector:
             valid_masks=a["train_mask"].astype(np.uint8).tobytes(),
             loss_mask=a["loss_mask"].astype(np.uint8).tobytes(),
             value_mask=a["value_mask"].astype(np.uint8).tobytes(),
+            sample_masks=a["sample_mask"].astype(np.uint8).tobytes() if "sample_mask" in a else b"",
+            extra_inputs=_typed("f", a["extra"], np.float32) if "extra" in a else _typed("f", np.zeros(0), np.float32),
             food=float(food),
         )
 
@@ -155,6 +175,11 @@ def rollout_arrays(msg) -> dict[str, np.ndarray]:
 
     if steps < 1 or agents < 1:
         raise ValueError(f"empty rollout ({steps} steps, {agents} agents)")
+    optional = {}
+    if len(msg.sample_masks):
+        optional["sample_mask"] = field("sample_masks", np.uint8, (steps, agents, N_ACTIONS)).astype(bool)
+    if len(msg.extra_inputs):
+        optional["extra"] = field("extra_inputs", np.float32, (steps + 1, agents, N_EXTRA_INPUTS))
     return {
         "agent_ids": field("agent_ids", np.uint32, (agents,)).astype(np.int64),
         "obs": field("observations", np.float32, (steps + 1, agents, channels, size, size)),
@@ -163,6 +188,7 @@ def rollout_arrays(msg) -> dict[str, np.ndarray]:
         "train_mask": field("valid_masks", np.uint8, (steps, agents, N_ACTIONS)).astype(bool),
         "loss_mask": field("loss_mask", np.uint8, (steps, agents)).astype(np.float32),
         "value_mask": field("value_mask", np.uint8, (steps, agents)).astype(np.float32),
+        **optional,
     }
 
 
@@ -255,8 +281,6 @@ class LearningActor:
         self.cfg, self.host = cfg, host
         self.ids = np.asarray(sorted(agent_ids), dtype=np.int64)
         self.net = training_network(cfg)
-        if self.net.config.nest_input:
-            raise ValueError("networks with nest_input need odometry, which Rollout messages do not carry")
         self.learning = (np.arange(len(self.ids)) if cfg.learning_agents < 0
                          else np.flatnonzero(self.ids < cfg.learning_agents))
         self.generator = torch.Generator()
@@ -301,14 +325,15 @@ class LearningActor:
         if self.unfiltered is None:
             self.unfiltered = unfiltered_agents(self.cfg, self.stream, self.episode)[self.ids]
         obs = torch.from_numpy(np.ascontiguousarray(batch.observations))[None]
-        extra = torch.from_numpy(nest_features(batch.positions, batch.loads, batch.world_shape))[None]
-        logits, _, self.state = self.net(obs, self.state, extra)
+        extra = nest_features(batch.positions, batch.loads, batch.world_shape)
+        logits, _, self.state = self.net(obs, self.state, torch.from_numpy(extra)[None])
+        allowed = allowed_actions(self.cfg, train_mask, self.unfiltered)
         actions, _, value_mask = select_actions(self.cfg, logits[0], batch.action_mask, train_mask, self.generator,
-                                                self.stream, sample_mask=allowed_actions(self.cfg, train_mask,
-                                                                                         self.unfiltered))
+                                                self.stream, sample_mask=allowed)
         rows = self.learning
         self.collector.add_step(batch.observations[rows], train_mask[rows], batch.queued[rows], actions[rows],
-                                value_mask[rows])
+                                value_mask[rows], sample_mask=allowed[rows],
+                                extra=extra[rows] if self.net.config.nest_input else None)
         return actions
 
     def outcome(self, batch: AgentBatch, team_rewards: np.ndarray, rows: np.ndarray, done: bool):
@@ -324,7 +349,9 @@ class LearningActor:
         if not len(self.learning):  # none of these agents learns: nothing to send
             self._new_chunk(loads)
             return None
-        msg = self.collector.to_message(batch.observations[self.learning], food=self.food)
+        last_extra = (nest_features(batch.positions, batch.loads, batch.world_shape)[self.learning]
+                      if self.net.config.nest_input else None)
+        msg = self.collector.to_message(batch.observations[self.learning], food=self.food, last_extra=last_extra)
         for _ in range(self.cfg.epochs):  # the trainer's update of this chunk draws these
             self.stream.permutation(len(self.learning))
         self._new_chunk(loads)
@@ -349,22 +376,25 @@ def behaviour_batch(net: ForMICNet, cfg: TrainConfig, arrays: dict[str, np.ndarr
         sample_mask = sampling_mask(cfg, arrays["train_mask"])
     obs = torch.from_numpy(np.ascontiguousarray(arrays["obs"]))
     actions = torch.from_numpy(arrays["actions"])
-    extra = torch.zeros(1, agents, N_EXTRA_INPUTS)
+    if net.config.nest_input and "extra" not in arrays:
+        raise ValueError("this network takes odometry inputs and the rollout carries none (Rollout.extra_inputs)")
+    extra_frames = arrays.get("extra", np.zeros((steps + 1, agents, N_EXTRA_INPUTS), np.float32))
+    extra = torch.from_numpy(np.ascontiguousarray(extra_frames))
     h, c = state if state is not None else net.initial_state(agents)
     h0, c0 = h.numpy().copy(), c.numpy().copy()
     logp = np.zeros((steps, agents), np.float32)
     values = np.zeros((steps, agents), np.float32)
     for t in range(steps):
-        logits, value, (h, c) = net(obs[t][None], (h, c), extra)
+        logits, value, (h, c) = net(obs[t][None], (h, c), extra[t][None])
         logits = logits[0]
         if cfg.action_filter == "mask":
             logits = logits.masked_fill(~torch.from_numpy(sample_mask[t]), -1e9)
         logp[t] = torch.log_softmax(logits, -1).gather(-1, actions[t][:, None])[:, 0].numpy()
         values[t] = value[0].numpy()
-    _, next_value, _ = net(obs[steps][None], (h, c), extra)
+    _, next_value, _ = net(obs[steps][None], (h, c), extra[steps][None])
     data = {
         "obs": arrays["obs"][:steps],
-        "extra": np.zeros((steps, agents, N_EXTRA_INPUTS), np.float32),
+        "extra": extra_frames[:steps],
         "actions": arrays["actions"],
         "logp": logp,
         "values": values,
@@ -386,9 +416,6 @@ class Learner:
     def __init__(self, cfg: TrainConfig, run_dir: Path, resume: bool = True, max_lag: int = DEFAULT_MAX_LAG,
                  log: Callable[[str], None] = print):
         self.trainer = Trainer(cfg, run_dir, resume=resume, log=log)
-        if self.trainer.net.config.nest_input:
-            raise ValueError("networks with nest_input need odometry, which Rollout messages do not carry; "
-                             "train them in-process (formic train)")
         self.cfg, self.max_lag, self.log = cfg, max_lag, log
         self.behaviour = copy.deepcopy(self.trainer.net)  # same memory format: same arithmetic
         self.versions: OrderedDict[int, dict[str, torch.Tensor]] = OrderedDict()
@@ -423,7 +450,8 @@ class Learner:
         state = None if new_episode else previous[1]
         if state is not None and state[0].shape[1] != arrays["actions"].shape[1]:
             state = None
-        arrays = {**arrays, "sample_mask": self.episode_draws(host, new_episode, arrays)}
+        drawn = self.episode_draws(host, new_episode, arrays)  # keeps the trainer's stream in step
+        arrays = {"sample_mask": drawn, **arrays}  # the host's own masks, when it sent them, win
         data, final_state = behaviour_batch(self.behaviour, self.cfg, arrays, state)
         self.lstm[host] = (episode, final_state)
         trainer = self.trainer
