@@ -17,7 +17,7 @@ from formic_agent.episode import run_episode
 from formic_agent.learned import LearnedPolicy
 from formic_agent.network import NETWORK_PRESETS, ForMICNet, NetworkConfig, count_parameters
 from formic_agent.policy import AgentBatch
-from formic_trainer.train import Trainer, make_config, parse_overrides, share_rewards
+from formic_trainer.train import Trainer, make_config, parse_overrides, set_learning_rate, share_rewards
 from formic_world import World, WorldConfig, generate_scenario
 
 TINY = dict(teams=(4,), world_sizes=((16, 16),), episode_steps=32, rollout_steps=16, threads=1)
@@ -161,3 +161,15 @@ def test_team_reward_mixes_each_reward_with_the_team_mean():
     np.testing.assert_allclose(mixed, 0.5 * rewards + 0.5 * team_mean, rtol=1e-6)
     np.testing.assert_allclose(share_rewards(rewards, 1.0), np.full(4, team_mean), rtol=1e-6)
     assert mixed.sum() == pytest.approx(rewards.sum(), rel=1e-6)  # sharing moves reward, never adds it
+
+
+def test_learning_rate_warms_up_linearly_over_the_first_updates():
+    optimizer = torch.optim.Adam([torch.nn.Parameter(torch.zeros(1))], lr=1.0)
+    cfg = make_config("cpu", lr=0.001, lr_warmup=4)
+    rates = []
+    for updates in range(6):
+        set_learning_rate(optimizer, cfg, updates)
+        rates.append(optimizer.param_groups[0]["lr"])
+    assert rates == pytest.approx([0.00025, 0.0005, 0.00075, 0.001, 0.001, 0.001])
+    set_learning_rate(optimizer, make_config("cpu", lr=0.001), 0)  # off by default
+    assert optimizer.param_groups[0]["lr"] == 0.001

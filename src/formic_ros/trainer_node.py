@@ -52,6 +52,7 @@ from formic_trainer.train import (
     filter_probability,
     sampling_mask,
     select_actions,
+    set_learning_rate,
     share_rewards,
     update,
 )
@@ -455,6 +456,7 @@ class Learner:
         data, final_state = behaviour_batch(self.behaviour, self.cfg, arrays, state)
         self.lstm[host] = (episode, final_state)
         trainer = self.trainer
+        set_learning_rate(trainer.optimizer, self.cfg, trainer.updates)
         stats = update(trainer.net, trainer.optimizer, self.cfg, data, trainer.rng)
         trainer.updates += 1
         trainer.env_steps += int(arrays["actions"].size)

@@ -80,6 +80,11 @@ class TrainConfig:
     init_weights: str = ""  # start the network from this checkpoint (warm start / fine-tune)
     optimizer: str = "nadam"
     lr: float = 5e-6
+    # Learning-rate warm-up over the first N updates of a run (beyond the paper). A fine-tune
+    # from bare weights (init_weights) starts Adam with empty moments, whose first steps move
+    # every weight by ~lr at once: measured, the policy's entropy rose from 0.45 to 0.8 within
+    # one episode set of a crowd fine-tune. 0 = off.
+    lr_warmup: int = 0
     max_grad_norm: float = 10.0
     loss_reduction: str = "sum"  # "sum": gradients of all learning agents are summed (paper)
     normalize_advantages: bool = False
@@ -344,6 +349,14 @@ def update(net: ForMICNet, optimizer: torch.optim.Optimizer, cfg: TrainConfig, d
     return {k: float(np.mean(v)) for k, v in stats.items()}
 
 
+def set_learning_rate(optimizer: torch.optim.Optimizer, cfg: TrainConfig, updates: int) -> None:
+    """The learning rate of update number ``updates`` (0-based): ``lr``, ramped up linearly
+    over the first ``lr_warmup`` updates."""
+    scale = min(1.0, (updates + 1) / cfg.lr_warmup) if cfg.lr_warmup > 0 else 1.0
+    for group in optimizer.param_groups:
+        group["lr"] = cfg.lr * scale
+
+
 def make_optimizer(net: ForMICNet, cfg: TrainConfig) -> torch.optim.Optimizer:
     if cfg.optimizer == "nadam":
         return torch.optim.NAdam(net.parameters(), lr=cfg.lr)
@@ -521,6 +534,7 @@ class Trainer:
                 _, next_values, _ = net(torch.from_numpy(obs)[None], (h, c), torch.from_numpy(extra)[None])
             buf["next_value"] = next_values[0].numpy()[learners]
             self.env_steps += T * n
+            set_learning_rate(self.optimizer, cfg, self.updates)
             stats = update(net, self.optimizer, cfg, buf, self.rng)
             self.updates += 1
             for k, v in stats.items():
