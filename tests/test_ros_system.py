@@ -4,6 +4,7 @@ process it starts is bounded by a time limit and reaped."""
 
 from __future__ import annotations
 
+import contextlib
 import signal
 import time
 
@@ -41,6 +42,27 @@ def spawner(tmp_path):
     s = Spawner(tmp_path, fresh_domain_id())
     yield s
     s.reap_all()
+
+
+@contextlib.contextmanager
+def agent_node_in_this_process(spawner, monkeypatch, agent: int):
+    """An rclpy node ``agent_K`` in this test's process and domain, with its executor."""
+    from rclpy.experimental import EventsExecutor
+
+    env = ros_test_environment(spawner.domain_id)
+    for key in ("FASTDDS_BUILTIN_TRANSPORTS", "ROS_AUTOMATIC_DISCOVERY_RANGE"):
+        monkeypatch.setenv(key, env[key])
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=spawner.domain_id)
+    executor = EventsExecutor(context=context)
+    node = rclpy.create_node(f"agent_{agent}", namespace="/formic", context=context)
+    executor.add_node(node)
+    try:
+        yield node, executor
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)
 
 
 def sim_result(steps: int, policy: str) -> tuple[float, str]:
@@ -185,21 +207,14 @@ def test_killed_host_does_not_stop_the_world_and_a_restarted_one_rejoins(spawner
 def test_bad_actions_are_rejected_and_logged(spawner, monkeypatch):
     """A rogue node in this process drives agent 3 and floods the world with bad actions first."""
     from formic_interfaces.msg import ActionBatch, AgentAction, AgentObservation
-    from rclpy.experimental import EventsExecutor
 
     steps = 20
     world = spawner.formic("world", "world", *SMALL, "--steps", str(steps), "--deadline-ms", "5000",
                            "--domain-id", str(spawner.domain_id), "--json", limit_s=120)
     spawner.formic("host", "agents", "--ids", "0-2,4-7", "--policy", "random", "--name", "host",
                    "--domain-id", str(spawner.domain_id), "--once")
-    env = ros_test_environment(spawner.domain_id)
-    for key in ("FASTDDS_BUILTIN_TRANSPORTS", "ROS_AUTOMATIC_DISCOVERY_RANGE"):
-        monkeypatch.setenv(key, env[key])
-    context = rclpy.Context()
-    rclpy.init(context=context, domain_id=spawner.domain_id)
-    executor = EventsExecutor(context=context)
-    node = rclpy.create_node("agent_3", namespace="/formic", context=context)
-    executor.add_node(node)
+    rogue = agent_node_in_this_process(spawner, monkeypatch, 3)
+    node, executor = rogue.__enter__()
     batch = node.create_publisher(ActionBatch, "/formic/actions", 10)
     own = node.create_publisher(AgentAction, "~/action", 10)
     other = node.create_publisher(AgentAction, "/formic/agent_1/action", 10)
@@ -234,9 +249,7 @@ def test_bad_actions_are_rejected_and_logged(spawner, monkeypatch):
                 graph |= {f"{ns}/{name}" for name, ns in node.get_node_names_and_namespaces()}
                 next_graph_poll = time.monotonic() + 0.5
     finally:
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown(context=context)
+        rogue.__exit__(None, None, None)
     assert world.wait() == 0, world.output()[-3000:]
     assert {f"/formic/{name}" for name in ["world", "host"] + [f"agent_{a}" for a in range(8)]} <= graph
     summary = world.json_line()
@@ -252,6 +265,37 @@ def test_bad_actions_are_rejected_and_logged(spawner, monkeypatch):
     for reason in ("malformed", "future step", "unknown agent", "agent id mismatch", "action out of range", "old step"):
         assert f"rejected action ({reason})" in log
     assert log.count("rejected action (") < 6 * steps, "rejections are rate-limited"
+
+
+def test_a_lost_observation_is_sent_again(spawner, monkeypatch):
+    """Agent 3 acts as if the first copy of some steps' observation never arrived: the world
+    re-sends it to the agents that have not answered, long before the 20 s deadline."""
+    from formic_interfaces.msg import AgentAction, AgentObservation
+
+    steps, lost = 20, {3, 7, 12}
+    world = spawner.formic("world", "world", *SMALL, "--steps", str(steps), "--deadline-ms", "20000",
+                           "--domain-id", str(spawner.domain_id), "--json", limit_s=120)
+    spawner.formic("host", "agents", "--ids", "0-2,4-7", "--policy", "random", "--transport", "batched",
+                   "--domain-id", str(spawner.domain_id), "--once")
+    copies: dict[int, int] = {}
+    with agent_node_in_this_process(spawner, monkeypatch, 3) as (node, executor):
+        answer = node.create_publisher(AgentAction, "~/action", 10)
+
+        def on_observation(obs: AgentObservation) -> None:
+            copies[obs.step] = copies.get(obs.step, 0) + 1
+            if obs.done or (obs.step in lost and copies[obs.step] == 1):
+                return  # "lost in transit"
+            answer.publish(AgentAction(step=obs.step, agent_id=3, action=4))
+
+        node.create_subscription(AgentObservation, "~/observation", on_observation, 10)
+        deadline = time.monotonic() + 90
+        while world.alive() and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.01)
+    assert world.wait() == 0, world.output()[-3000:]
+    summary = world.json_line()
+    assert summary["steps"] == steps and summary["missed_actions"] == 0
+    assert all(copies[t] >= 2 for t in lost), copies
+    assert summary["wall_s"] - summary["startup_s"] < 15, "each lost step cost about 0.25 s, not the deadline"
 
 
 def test_ctrl_c_on_run_leaves_no_orphans(spawner):
