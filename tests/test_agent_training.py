@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import pickle
 import subprocess
@@ -17,7 +18,16 @@ from formic_agent.episode import run_episode
 from formic_agent.learned import LearnedPolicy
 from formic_agent.network import NETWORK_PRESETS, ForMICNet, NetworkConfig, count_parameters
 from formic_agent.policy import AgentBatch
-from formic_trainer.train import Trainer, make_config, parse_overrides, set_learning_rate, share_rewards
+from formic_agent.registry import make_policy
+from formic_trainer.train import (
+    MetaAgents,
+    Trainer,
+    make_config,
+    parse_overrides,
+    policy_losses,
+    set_learning_rate,
+    share_rewards,
+)
 from formic_world import World, WorldConfig, generate_scenario
 
 TINY = dict(teams=(4,), world_sizes=((16, 16),), episode_steps=32, rollout_steps=16, threads=1)
@@ -173,3 +183,52 @@ def test_learning_rate_warms_up_linearly_over_the_first_updates():
     assert rates == pytest.approx([0.00025, 0.0005, 0.00075, 0.001, 0.001, 0.001])
     set_learning_rate(optimizer, make_config("cpu", lr=0.001), 0)  # off by default
     assert optimizer.param_groups[0]["lr"] == 0.001
+
+
+def test_demonstrator_sees_what_the_learners_see_and_targets_loaded_agents_near_the_nest():
+    cfg = make_config("cpu", teams=(24,), world_sizes=((24, 24),), imitate="csaf11", imitation_radius=3,
+                      imitation_agents="all")
+    envs = MetaAgents(cfg)
+    envs.reset(0)
+    world = envs.worlds[0]
+    twin = make_policy("csaf11")  # the same demonstrator, driven by hand
+    twin.reset(24, world.scenario.seed)
+    rng = np.random.default_rng(0)
+    for _ in range(12):
+        obs, _, valid, _, _ = envs.observe()
+        targets, wanted = envs.demonstrations()
+        np.testing.assert_array_equal(targets, twin.act(AgentBatch.from_world(world, observations=obs, action_mask=valid)))
+        near = np.abs(world.pos - 11.5).max(axis=1) <= 3
+        np.testing.assert_array_equal(wanted, near & ~world.queued)
+        assert wanted.any()
+        envs.step(rng.integers(0, 5, 24))
+    envs.cfg = dataclasses.replace(cfg, imitation_agents="loaded")
+    world.load[::2] = world.load_full  # half the team carrying
+    envs.observe()
+    _, wanted = envs.demonstrations()
+    near = np.abs(world.pos - 11.5).max(axis=1) <= 3
+    np.testing.assert_array_equal(wanted, near & world.carrying & ~world.queued)
+    assert wanted.any() and not wanted[1::2].any()
+
+
+def test_imitation_loss_is_the_cross_entropy_of_the_demonstrators_actions():
+    torch.manual_seed(0)
+    cfg = make_config("cpu", imitate="csaf11", imitation_coef=0.5)
+    net = ForMICNet(NETWORK_PRESETS["cpu"])
+    T, B = 3, 4
+    gen = torch.Generator().manual_seed(1)
+    batch = {
+        "obs": torch.rand(T, B, 8, 11, 11, generator=gen), "extra": torch.zeros(T, B, 4),
+        "h0": torch.zeros(1, B, 64), "c0": torch.zeros(1, B, 64),
+        "actions": torch.randint(0, 5, (T, B), generator=gen), "logp": torch.full((T, B), -1.6),
+        "train_mask": torch.ones(T, B, 5, dtype=torch.bool), "any_valid": torch.ones(T, B),
+        "loss_mask": torch.ones(T, B), "value_mask": torch.ones(T, B), "returns": torch.zeros(T, B),
+        "advantages": torch.zeros(T, B), "expert_actions": torch.randint(0, 5, (T, B), generator=gen),
+        "imitation_mask": torch.tensor([[1.0, 0, 1, 0]] * T),
+    }
+    terms = policy_losses(net, cfg, batch)
+    logits, _, _ = net(batch["obs"], (batch["h0"], batch["c0"]), batch["extra"])
+    ce = torch.nn.functional.cross_entropy(logits[:, [0, 2]].reshape(-1, 5), batch["expert_actions"][:, [0, 2]].reshape(-1))
+    assert terms["imitation"].item() == pytest.approx(ce.item(), rel=1e-5)
+    without = policy_losses(net, cfg, {k: v for k, v in batch.items() if k not in ("expert_actions", "imitation_mask")})
+    assert terms["loss"].item() == pytest.approx(without["loss"].item() + 0.5 * ce.item(), rel=1e-5)

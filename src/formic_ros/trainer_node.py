@@ -416,6 +416,9 @@ class Learner:
 
     def __init__(self, cfg: TrainConfig, run_dir: Path, resume: bool = True, max_lag: int = DEFAULT_MAX_LAG,
                  log: Callable[[str], None] = print):
+        if cfg.imitate:
+            raise ValueError("imitation runs its demonstrator beside the training worlds; train it in-process "
+                             "(formic train)")
         self.trainer = Trainer(cfg, run_dir, resume=resume, log=log)
         self.cfg, self.max_lag, self.log = cfg, max_lag, log
         self.behaviour = copy.deepcopy(self.trainer.net)  # same memory format: same arithmetic

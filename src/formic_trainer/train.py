@@ -93,6 +93,16 @@ class TrainConfig:
     # mean). With purely individual rewards, loaded agents crowding the nest cost only the empty
     # agents they trap; sharing makes the team's throughput part of every agent's return.
     team_reward: float = 0.0
+    # Imitation (beyond the paper: warm-starting from a demonstrator, DAgger style). The named
+    # baseline policy runs beside the learners on the very observations they see, without
+    # acting; its action is a cross-entropy target (weight imitation_coef) for the learners'
+    # free agents that imitation_agents names ("loaded" or "all") within imitation_radius
+    # cells (Chebyshev) of the nest centre (0: anywhere). Meant for the crowded nest, where
+    # C-SAF-11's orbit keeps 128 agents flowing. "" = off.
+    imitate: str = ""
+    imitation_coef: float = 0.0
+    imitation_agents: str = "loaded"
+    imitation_radius: int = 0
     # Techniques (the paper's ablation switches)
     action_filter: str = "replace"  # "replace" (paper) | "mask" (mask invalid logits) | "none"
     pheromones: bool = True  # False: train (and test) without pheromones
@@ -106,6 +116,8 @@ class TrainConfig:
     threads: int = 1
 
     def __post_init__(self) -> None:
+        if self.imitation_agents not in ("loaded", "all"):
+            raise ValueError(f"imitation_agents must be 'loaded' or 'all', not {self.imitation_agents!r}")
         if len(self.world_sizes) < len(self.teams):
             raise ValueError(f"{len(self.teams)} teams but {len(self.world_sizes)} world_sizes: give one side "
                              "range per team (--set world_sizes=40-96,64-128)")
@@ -208,24 +220,47 @@ class MetaAgents:
             for o, t in zip(self.offsets[:-1], cfg.teams)
         ]
         self.learners = np.concatenate(learners)
+        self.experts: list = []  # one demonstrator per world (cfg.imitate)
+        self._seen: list[tuple[np.ndarray, np.ndarray]] = []  # each world's last (observations, valid)
 
     def reset(self, episode: int) -> None:
         """New scenarios for every world; curriculum intensities from the global episode."""
         scenarios, self.highway, self.deposit = sample_scenarios(self.cfg, self.rng, episode)
         self.worlds = [World(scenario) for scenario in scenarios]
+        if self.cfg.imitate:
+            from formic_agent.registry import make_policy
+
+            self.experts = [make_policy(self.cfg.imitate) for _ in scenarios]
+            for expert, scenario in zip(self.experts, scenarios):
+                expert.reset(scenario.config.n_agents, scenario.seed)
 
     def observe(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(obs, extra, env-valid mask, training mask, queued) for every agent of every world."""
         obs, extra, valid, train, queued = [], [], [], [], []
+        self._seen = []
         for w in self.worlds:
             obs.append(w.observer.observe())
             v = w.action_mask()
             valid.append(v)
+            self._seen.append((obs[-1], v))
             train.append(w.training_action_mask(v))
             queued.append(w.queued)
             extra.append(nest_features(w.pos, w.loads, w.grid.shape))
         return (np.concatenate(obs), np.concatenate(extra), np.concatenate(valid),
                 np.concatenate(train), np.concatenate(queued))
+
+    def demonstrations(self) -> tuple[np.ndarray, np.ndarray]:
+        """(expert action, whether it is an imitation target) for every agent of every world,
+        from the last observations; the experts must see every step to keep their state."""
+        from formic_agent.policy import AgentBatch
+
+        cfg, targets, wanted = self.cfg, [], []
+        for w, expert, (obs, valid) in zip(self.worlds, self.experts, self._seen):
+            targets.append(expert.act(AgentBatch.from_world(w, observations=obs, action_mask=valid)))
+            near = np.abs(w.pos - (np.array(w.grid.shape) / 2 - 0.5)).max(axis=1) <= (cfg.imitation_radius or np.inf)
+            who = w.carrying if cfg.imitation_agents == "loaded" else np.ones(len(w.pos), bool)
+            wanted.append(near & who & ~w.queued)
+        return np.concatenate(targets), np.concatenate(wanted)
 
     def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         rewards, food = [], []
@@ -282,6 +317,14 @@ def policy_losses(
         terms["policy"] - cfg.entropy_coef * terms["entropy"]
         + cfg.value_coef * terms["value"] + cfg.valid_coef * terms["valid"]
     )
+    if "expert_actions" in batch:  # the agents' own unmasked policy, as it acts at test time
+        own = torch.log_softmax(logits, dim=-1)
+        imitation_mask = batch["imitation_mask"]
+        terms["imitation"] = reduce(-own.gather(-1, batch["expert_actions"].unsqueeze(-1)).squeeze(-1), imitation_mask)
+        terms["loss"] = terms["loss"] + cfg.imitation_coef * terms["imitation"]
+        with torch.no_grad():
+            agree = (logits.argmax(-1) == batch["expert_actions"]).float()
+            terms["expert_agreement"] = (agree * imitation_mask).sum() / imitation_mask.sum().clamp(min=1.0)
     with torch.no_grad():
         predicted = torch.sigmoid(logits) > 0.5
         agree = (predicted == batch["train_mask"])[..., :4].all(-1).float()
@@ -324,6 +367,9 @@ def update(net: ForMICNet, optimizer: torch.optim.Optimizer, cfg: TrainConfig, d
         "h0": torch.from_numpy(data["h0"]),
         "c0": torch.from_numpy(data["c0"]),
     }
+    if "expert_actions" in data:
+        tensors["expert_actions"] = torch.from_numpy(data["expert_actions"]).long()
+        tensors["imitation_mask"] = torch.from_numpy(data["imitation_mask"]).float()
     adv_t = torch.from_numpy(adv.astype(np.float32))
     if cfg.normalize_advantages:
         m = tensors["loss_mask"]
@@ -506,6 +552,9 @@ class Trainer:
                 "h0": h[:, learners].numpy().copy(),
                 "c0": c[:, learners].numpy().copy(),
             }
+            if cfg.imitate:
+                buf["expert_actions"] = np.zeros((T, len(learners)), np.int64)
+                buf["imitation_mask"] = np.zeros((T, len(learners)), np.float32)
             for t in range(T):
                 with torch.no_grad():
                     logits, values, (h, c) = net(
@@ -526,6 +575,10 @@ class Trainer:
                 buf["sample_mask"][t] = allowed[learners]
                 buf["loss_mask"][t] = ~queued[learners]
                 buf["value_mask"][t] = value_mask[learners]
+                if cfg.imitate:
+                    expert_actions, wanted = envs.demonstrations()
+                    buf["expert_actions"][t] = expert_actions[learners]
+                    buf["imitation_mask"][t] = wanted[learners]
                 rewards, step_food = envs.step(actions)
                 food += step_food
                 buf["rewards"][t] = rewards[learners] * cfg.reward_scale
@@ -563,12 +616,14 @@ class Trainer:
             self.writer.flush()
             sps = self.env_steps / max(self.seconds, 1e-9)
             per_env = " ".join(f"{stats[f'food_env{i}']:.0f}" for i in range(len(self.cfg.teams)))
+            imitation = (f"imit {stats['imitation']:.3f} agree {stats['expert_agreement']:.2f} | "
+                         if "imitation" in stats else "")
             self.log(
                 f"ep {self.episode:6d} | food {stats['food_mean']:6.1f} "
                 f"({per_env}) | "
                 f"loss {stats['loss']:.3f} pi {stats['policy']:.3f} v {stats['value']:.3f} "
                 f"ent {stats['entropy']:.3f} valid {stats['valid_accuracy']:.3f} act-ok {stats['valid_rate']:.2f} | "
-                f"I_h {stats['highway_intensity']:.2f} | {sps:,.0f} agent-steps/s | {self.seconds / 60:.1f} min"
+                f"{imitation}I_h {stats['highway_intensity']:.2f} | {sps:,.0f} agent-steps/s | {self.seconds / 60:.1f} min"
             )
             self.episode_sets += 1
             if self.episode_sets % self.cfg.checkpoint_every == 0:
