@@ -276,6 +276,15 @@ def test_aggregate_means_stds_curves_times_and_planner_ratio():
     assert rnd["seeds"] == [1, 2] and rnd["paper_food"] is None
 
 
+def test_aggregate_refuses_to_mix_two_models_in_one_cell():
+    first, second = _record("formic", 1, 5.0, 1.0, [5.0]), _record("formic", 2, 7.0, 1.0, [7.0])
+    first["model"], second["model"] = "a" * 64, "b" * 64
+    with pytest.raises(ValueError, match="2 different models"):
+        aggregate([first, second])
+    second["model"] = first["model"]
+    assert aggregate([first, second])[0]["food_mean"] == 6.0
+
+
 def test_report_sets_our_numbers_beside_the_papers():
     def cell(algorithm, agents, env="infinite", obstacles=0.0, variant=""):
         return {"algorithm": algorithm, "variant": variant, "size": 128, "agents": agents, "obstacles": obstacles,

@@ -48,6 +48,11 @@ def aggregate(records: Iterable[dict]) -> list[dict]:
     groups: dict[tuple, list[dict]] = {}
     for record in records:
         groups.setdefault(tuple(record[f] for f in CELL_FIELDS), []).append(record)
+    for key, group in groups.items():
+        models = sorted({r.get("model", "") for r in group})
+        if len(models) > 1:
+            raise ValueError(f"{key[0]} ({key[1] or 'default'}) was run with {len(models)} different models "
+                             f"({', '.join(m[:12] for m in models)}): evaluate each model into its own folder")
     cells = []
     for key, group in groups.items():
         group.sort(key=lambda r: (r["seed"], r["scenario"]))
