@@ -118,6 +118,8 @@ SAMPLES = {
         valid_masks=u8(T * N * 5, 2),
         loss_mask=bytes([1, 1, 0, 1, 1, 1]),
         value_mask=bytes([1, 0, 1, 1, 1, 1]),
+        sample_masks=u8(T * N * 5, 2),
+        extra_inputs=f32((T + 1) * N * 4, 0.25),
         food=42.0,
     ),
     "Weights": dict(
