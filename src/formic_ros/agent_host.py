@@ -37,6 +37,7 @@ from rclpy.type_description_service import START_TYPE_DESCRIPTION_SERVICE_PARAM
 
 from formic_agent.policy import AgentBatch, CentralPolicy, Policy
 from formic_agent.registry import POLICY_NAMES, make_policy
+from formic_world import Scenario
 
 from . import convert, qos
 
@@ -99,6 +100,15 @@ def select(batch: AgentBatch, rows: np.ndarray) -> AgentBatch:
         action_mask=batch.action_mask[rows], positions=batch.positions[rows], loads=batch.loads[rows],
         queued=batch.queued[rows], world_shape=batch.world_shape,
     )
+
+
+def read_scenario(msg: ScenarioDescription, log) -> Scenario | None:
+    """The scenario a description carries, or None (logged) when it cannot be read."""
+    try:
+        return convert.scenario_from_description(msg)
+    except ValueError as exc:
+        log.error(f"ignoring scenario: {exc}")
+        return None
 
 
 def lean_node(name: str, namespace: str) -> Node:
@@ -183,12 +193,7 @@ class AgentHost:
         self.episodes += 1
 
     def _on_scenario(self, msg: ScenarioDescription) -> None:
-        if msg.scenario_json == self.scenario_json:
-            return
-        try:
-            scenario = convert.scenario_from_description(msg)
-        except ValueError as exc:
-            self.log.error(f"ignoring scenario: {exc}")
+        if msg.scenario_json == self.scenario_json or (scenario := read_scenario(msg, self.log)) is None:
             return
         self.scenario_json = msg.scenario_json
         self.n_agents = scenario.config.n_agents
@@ -361,12 +366,7 @@ class LearningHost:
 
     # ------------------------------------------------------------------------ inputs
     def _on_scenario(self, msg: ScenarioDescription) -> None:
-        if msg.scenario_json in (self.scenario_json, self.played):
-            return
-        try:
-            scenario = convert.scenario_from_description(msg)
-        except ValueError as exc:
-            self.log.error(f"ignoring scenario: {exc}")
+        if msg.scenario_json in (self.scenario_json, self.played) or (scenario := read_scenario(msg, self.log)) is None:
             return
         self.scenario_json = self.next_scenario = msg.scenario_json
         if (self.ids >= scenario.config.n_agents).any():

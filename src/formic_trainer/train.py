@@ -28,6 +28,8 @@ import torch.nn.functional as F
 
 from formic_agent.checkpoint import load_network, read_checkpoint, save_checkpoint
 from formic_agent.network import N_EXTRA_INPUTS, NETWORK_PRESETS, ForMICNet, nest_features
+from formic_agent.policy import AgentBatch
+from formic_agent.registry import make_policy
 from formic_world import Scenario, World, WorldConfig, generate_scenario
 from formic_world.pheromones import curriculum_intensities
 
@@ -228,8 +230,6 @@ class MetaAgents:
         scenarios, self.highway, self.deposit = sample_scenarios(self.cfg, self.rng, episode)
         self.worlds = [World(scenario) for scenario in scenarios]
         if self.cfg.imitate:
-            from formic_agent.registry import make_policy
-
             self.experts = [make_policy(self.cfg.imitate) for _ in scenarios]
             for expert, scenario in zip(self.experts, scenarios):
                 expert.reset(scenario.config.n_agents, scenario.seed)
@@ -252,8 +252,6 @@ class MetaAgents:
     def demonstrations(self) -> tuple[np.ndarray, np.ndarray]:
         """(expert action, whether it is an imitation target) for every agent of every world,
         from the last observations; the experts must see every step to keep their state."""
-        from formic_agent.policy import AgentBatch
-
         cfg, targets, wanted = self.cfg, [], []
         for w, expert, (obs, valid) in zip(self.worlds, self.experts, self._seen):
             targets.append(expert.act(AgentBatch.from_world(w, observations=obs, action_mask=valid)))
