@@ -288,9 +288,11 @@ def test_aggregate_refuses_to_mix_two_models_in_one_cell():
 def test_report_sets_our_numbers_beside_the_papers():
     def cell(algorithm, agents, env="infinite", obstacles=0.0, variant=""):
         return {"algorithm": algorithm, "variant": variant, "size": 128, "agents": agents, "obstacles": obstacles,
-                "env": env, "steps": 512}
+                "env": env, "steps": 1024}
 
     assert paper_food(cell("formic", 16)) == 249
+    assert paper_food(cell("formic", 16) | {"steps": 512}) is None  # the paper's totals are 1024-step
+    assert paper_food(cell("csaf11-ref", 64)) == paper_food(cell("csaf11", 64)) == 158
     assert paper_food(cell("planner", 128, env="finite")) == 624
     assert paper_food(cell("csaf11", 32, obstacles=0.05)) == 120
     assert paper_food(cell("csaf", 32, obstacles=0.05)) is None
@@ -298,7 +300,7 @@ def test_report_sets_our_numbers_beside_the_papers():
     assert paper_food(cell("formic", 32, variant="no-pheromones")) == 267
     assert paper_food(cell("formic", 32) | {"size": 64}) is None
 
-    records = [_record(a, s, f, 1.0, [0.0] * 511 + [f], agents=16) | {"size": 128}
+    records = [_record(a, s, f, 1.0, [0.0] * 1023 + [f], agents=16) | {"size": 128}
                for a, foods in (("formic", (240.0, 260.0)), ("planner", (270.0, 290.0))) for s, f in zip((1, 2), foods)]
     cells = aggregate(records)
     run = {"algorithms": ["formic", "planner"], "scenarios": "x", "workers": 2,

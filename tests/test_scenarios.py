@@ -248,7 +248,8 @@ def test_corrupted_json_is_rejected(tmp_path):
     [
         (lambda d: d.update(format="something-else"), "not a ForMIC scenario"),
         (lambda d: d.pop("format"), "not a ForMIC scenario"),
-        (lambda d: d.update(version=2), "version 2 is not supported"),
+        (lambda d: d.update(version=3), "version 3 is not supported"),
+            (lambda d: d.update(version=1), "version 1 scenario has no timing"),
         (lambda d: d.pop("agents"), "malformed scenario"),
         (lambda d: d["config"].update(height=5), "malformed scenario.*at least 12x12"),
         (lambda d: d["config"].update(colour="red"), "malformed scenario.*unknown world configuration"),
@@ -280,3 +281,13 @@ def test_overlapping_queues_are_rejected():
     data["resources"] = [[4, 1, EAST, 0], [1, 4, SOUTH, 0]]
     with pytest.raises(ScenarioError, match="share a queue cell"):
         Scenario.from_dict(data)
+
+
+def test_version_1_files_load_with_the_nominal_timing_they_were_written_under(tmp_path):
+    data = scenario_dict()
+    assert data["version"] == 2 and data["config"]["timing"] == "reference"
+    data["version"] = 1
+    del data["config"]["timing"]
+    scenario = Scenario.load(write(tmp_path, json.dumps(data)))
+    assert scenario.config.timing == "nominal"
+    assert scenario.to_dict()["version"] == 2 and scenario.to_dict()["config"]["timing"] == "nominal"

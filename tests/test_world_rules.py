@@ -11,7 +11,7 @@ import pytest
 from conftest import NW_QUEUE, agent, build_world, cells_of, resource, step
 from scipy import ndimage
 
-from formic_world import NO_ACTION, RewardConfig, WorldConfig
+from formic_world import NO_ACTION, REWARD_PRESETS, RewardConfig, WorldConfig
 from formic_world import world as world_module
 from formic_world.geometry import (
     EAST,
@@ -207,7 +207,7 @@ def test_queued_agent_actions_are_ignored():
 
 
 def test_released_agent_blocks_queue_until_it_walks_away():
-    world = build_world([agent(7, 6, True, 0), agent(7, 5, True, 0)])
+    world = build_world([agent(7, 6, True, 0), agent(7, 5, True, 0)], timing="nominal")
     result = step(world, [JOIN, JOIN])  # actions of queued agents are ignored
     assert world.load.tolist() == [5, 10] and result.rewards.tolist() == [WAIT, WAIT]
     assert result.food == 0.5 and world.score == 0.5
@@ -222,7 +222,7 @@ def test_released_agent_blocks_queue_until_it_walks_away():
     step(world, [EAST, JOIN])  # A bumps into the cache and stays: B cannot advance
     assert cells_of(world, 1) == (7, 5) and world.load[1] == 10
 
-    result = step(world, [NORTH, JOIN])  # A walks away: B advances and is served at once
+    result = step(world, [NORTH, JOIN])  # A walks away: B advances and (nominal) is served at once
     assert cells_of(world, 0) == (6, 6) and cells_of(world, 1) == (7, 6)
     assert world.spot_of[1] == 0 and world.load[1] == 5 and world.score == 1.5
 
@@ -231,8 +231,8 @@ def test_released_agent_blocks_queue_until_it_walks_away():
     assert result.rewards[1] == WAIT + 10.0 and result.food == 0.5
 
 
-def test_gathering_takes_exactly_ten_steps_and_pays_ten():
-    world = build_world([agent(2, 10)], resources=[R_SOUTH])
+def test_nominal_gathering_takes_exactly_ten_steps_and_pays_ten():
+    world = build_world([agent(2, 10)], resources=[R_SOUTH], timing="nominal")
     result = step(world, [JOIN])
     assert world.load[0] == 1 and result.rewards[0] == 0.0
     for t in range(2, 10):
@@ -246,8 +246,8 @@ def test_gathering_takes_exactly_ten_steps_and_pays_ten():
     assert world.resource_remaining[0] == -1  # infinite
 
 
-def test_resource_queue_advances_after_released_agent_leaves():
-    world = build_world([agent(2, 10), agent(3, 11)], resources=[R_SOUTH], obstacles=[(3, 12)])
+def test_nominal_resource_queue_advances_after_released_agent_leaves():
+    world = build_world([agent(2, 10), agent(3, 11)], resources=[R_SOUTH], obstacles=[(3, 12)], timing="nominal")
     step(world, [JOIN, EAST])
     step(world, [JOIN, JOIN])  # B joins at spot 1
     assert world.queue_members[4, :2].tolist() == [0, 1]
@@ -268,6 +268,94 @@ def test_drop_off_takes_two_steps_and_scores_exactly_one():
     assert world.load[0] == 0 and not world.queued[0] and not world.carrying[0]
     assert result.rewards[0] == WAIT + 10.0 and result.food == 0.5
     assert world.score == 1.0 and world.score_ticks == 10
+
+
+# ----------------------------------------------- reference timing (SPEC §1)
+
+
+def test_reference_gathering_takes_eleven_steps_and_pays_on_the_eleventh():
+    world = build_world([agent(2, 10)], resources=[R_SOUTH])
+    assert world.config.timing == "reference"
+    result = step(world, [JOIN])  # joins straight onto an empty spot 0: served at once
+    assert world.load[0] == 1 and world.queued[0] and result.rewards[0] == 0.0
+    for t in range(2, 11):
+        result = step(world, [JOIN])
+        assert world.load[0] == t and world.queued[0] and result.rewards[0] == WAIT
+    assert world.load[0] == 10 and world.queued[0]  # full after 10 steps, still docked
+    result = step(world, [JOIN])  # the 11th step since joining
+    assert not world.queued[0] and world.load[0] == 10 and result.rewards[0] == WAIT + 10.0
+    assert world.intensity[0] == 1.0 and cells_of(world, 0) == (2, 10)
+
+
+def test_reference_drop_off_takes_two_steps_from_a_direct_join():
+    world = build_world([agent(6, 6, loaded=True)])
+    result = step(world, [JOIN])  # onto the empty spot 0 of the NW cache queue: served this step
+    assert cells_of(world, 0) == (7, 6) and world.load[0] == 5 and result.food == 0.5
+    result = step(world, [JOIN])
+    assert world.load[0] == 0 and not world.queued[0] and result.rewards[0] == WAIT + 10.0
+    assert world.score == 1.0
+
+
+def test_reference_queue_moving_up_serves_nobody_in_that_step():
+    world = build_world([agent(7, 6, True, 0), agent(7, 5, True, 0)])
+    step(world, [JOIN, JOIN])
+    step(world, [JOIN, JOIN])  # A empties and is released on spot 0
+    assert world.load.tolist() == [0, 10] and world.score == 1.0
+    result = step(world, [NORTH, JOIN])  # A walks away: B moves up to spot 0 but is not served
+    assert cells_of(world, 1) == (7, 6) and world.spot_of[1] == 0
+    assert world.load[1] == 10 and result.food == 0.0 and world.score == 1.0
+    assert result.rewards[1] == WAIT
+    step(world, [EAST, JOIN])
+    assert world.load[1] == 5 and world.score == 1.5
+    result = step(world, [EAST, JOIN])
+    assert world.load[1] == 0 and not world.queued[1] and result.rewards[1] == WAIT + 10.0
+
+
+def test_reference_resource_queue_moves_up_then_gathers_eleven_steps():
+    world = build_world([agent(2, 10), agent(3, 11)], resources=[R_SOUTH], obstacles=[(3, 12)])
+    step(world, [JOIN, EAST])
+    step(world, [JOIN, JOIN])  # B joins at spot 1
+    for _ in range(9):
+        step(world, [JOIN, JOIN])
+    assert world.load[0] == 10 and not world.queued[0] and world.load[1] == 0  # 11 steps for A
+    step(world, [EAST, JOIN])  # A leaves spot 0: B moves up, nothing gathered this step
+    assert cells_of(world, 1) == (2, 10) and world.spot_of[1] == 0 and world.load[1] == 0
+    for t in range(1, 11):
+        step(world, [EAST, JOIN])
+        assert world.load[1] == t and world.queued[1]
+    step(world, [EAST, JOIN])
+    assert not world.queued[1]
+
+
+def cache_queue_scores(timing: str, steps: int) -> list[float]:
+    """Score after each step at one cache whose queue starts full (five loaded agents); every
+    released agent walks off north and keeps going, so the queue only waits for service."""
+    world = build_world([agent(*cell, True, 0) for cell in NW_QUEUE], timing=timing)
+    scores = []
+    for _ in range(steps):
+        step(world, {a: NORTH for a in range(5) if not world.queued[a]})
+        scores.append(world.score)
+    return scores
+
+
+def test_nest_throughput_with_a_full_cache_queue_nominal_timing():
+    # 2 service steps per agent; the next one moves up and is served as the last walks off:
+    # one unit per 2 steps per cache (2 per step for the nest's 4 caches).
+    assert cache_queue_scores("nominal", 10) == [0.5, 1, 1.5, 2, 2.5, 3, 3.5, 4, 4.5, 5]
+
+
+def test_nest_throughput_with_a_full_cache_queue_reference_timing():
+    # The move-up step serves nobody: one unit per 3 steps per cache (1.33 per step at the nest).
+    assert cache_queue_scores("reference", 14) == [0.5, 1, 1, 1.5, 2, 2, 2.5, 3, 3, 3.5, 4, 4, 4.5, 5]
+
+
+def test_timing_is_validated_and_defaults_to_reference():
+    assert WorldConfig().timing == "reference"
+    assert (WorldConfig().gather_steps, WorldConfig().dropoff_steps) == (11, 2)
+    nominal = WorldConfig(timing="nominal")
+    assert (nominal.gather_steps, nominal.dropoff_steps) == (10, 2)
+    with pytest.raises(ValueError, match="timing must be one of"):
+        WorldConfig(timing="referance")
 
 
 # -------------------------------------------------------- finite resources
@@ -717,7 +805,7 @@ def test_rewards_come_from_configuration():
     assert result.rewards[0] == -0.25 + 7.0
     world = build_world([agent(2, 10), agent(6, 6)], resources=[R_SOUTH], rewards=rewards)
     assert step(world, [JOIN, JOIN]).rewards.tolist() == [0.5, -2.0]
-    for _ in range(9):
+    for _ in range(10):  # reference timing: the 11th service step releases the full agent
         result = step(world, [JOIN, NORTH])
     assert result.rewards[0] == -0.25 + 3.0
 
@@ -789,3 +877,43 @@ def test_missing_action_does_nothing():
     assert cells_of(world, 0) == (12, 1) and world.pheromone.max() == 0.0
     assert world.intensity[0] == 1.0 and result.rewards.tolist() == [0.0, WAIT]  # queued: waits
     assert world.load[1] == 5  # service goes on
+
+
+def test_id_agent_order_lets_the_lowest_id_move_first():
+    for seed in range(4):
+        world = build_world([agent(12, 3), agent(12, 1)], seed=seed, agent_order="id")
+        step(world, [WEST, EAST])
+        assert cells_of(world, 0) == (12, 2) and cells_of(world, 1) == (12, 1)
+    with pytest.raises(ValueError, match="agent_order must be one of"):
+        WorldConfig(agent_order="sorted")
+
+
+def test_reference_training_filter_keeps_the_two_best_aligned_possible_moves():
+    # Nest centre (7.5, 7.5). From (2,2) south and east point home; with east blocked by an
+    # agent the reference keeps south and the better of the two away moves (north before
+    # west on a tie), where the paper's filter keeps south alone.
+    starts = [agent(2, 2, loaded=True), agent(2, 3)]
+    paper = build_world(starts).training_action_mask()
+    reference = build_world(starts, training_filter="reference").training_action_mask()
+    assert paper[0].tolist() == [False, False, True, False, False]
+    assert reference[0].tolist() == [True, False, True, False, False]
+    free = build_world([agent(2, 2, loaded=True)], training_filter="reference")
+    assert free.training_action_mask()[0].tolist() == [False, True, True, False, False]
+    with pytest.raises(ValueError, match="training_filter must be one of"):
+        WorldConfig(training_filter="strict")
+
+
+def test_reference_rewards_pay_near_resources_more_and_charge_blocked_steps():
+    rewards = REWARD_PRESETS["reference"]
+    assert (rewards.deposit, rewards.blocked, rewards.join_nothing) == (5.0, -0.5, -0.5)
+    world = build_world([agent(2, 10), agent(12, 0), agent(14, 14)], resources=[R_SOUTH], rewards=rewards)
+    result = step(world, [JOIN, WEST, EAST])  # agent 1 walks into the west wall; agent 2 moves
+    assert result.rewards.tolist() == [0.0, -0.5, MOVE]
+    for _ in range(10):
+        result = step(world, [JOIN, JOIN, WEST])
+    distance = np.hypot(1 - 7.5, 10 - 7.5)  # resource (1,10) to the nest centre
+    assert result.rewards[0] == pytest.approx(WAIT + 10.0 * np.exp(-0.0115 * distance), abs=1e-12)
+    assert result.rewards[1] == -0.5  # a JOIN that reaches no queue
+    loaded = build_world([agent(6, 6, loaded=True)], rewards=rewards)
+    step(loaded, [JOIN])
+    assert step(loaded, [JOIN]).rewards[0] == WAIT + 5.0

@@ -302,10 +302,11 @@ class CentralizedPlanner(CentralPolicy):
 
     # --------------------------------------------------------------- allocation
     def _service_steps(self, world) -> np.ndarray:
-        """Steps a queue spends per agent (the next one moves up as the served one leaves)."""
-        gather = -(-world.load_full // world.gather_ticks)
-        drop = -(-world.load_full // world.dropoff_ticks)
-        return np.where(world.queue_is_cache, drop, gather)
+        """Steps a queue spends per agent (the next one moves up as the served one leaves;
+        under the reference timing that move-up step serves nobody)."""
+        cfg = world.config
+        move_up = 0 if cfg.serve_after_move_up else 1
+        return np.where(world.queue_is_cache, cfg.dropoff_steps, cfg.gather_steps) + move_up
 
     def _backlog(self, world, service: np.ndarray) -> np.ndarray:
         """Steps until each queue has served the agents already in it."""

@@ -34,8 +34,8 @@ def _split(text: str, kind, option: str) -> list:
               help="Scenarios per setting, generated into OUT/scenarios; or a directory of stored "
                    "scenario files (their settings, filtered by the options above when given).")
 @click.option("--seed", default=0, show_default=True, help="Seed the scenario seeds derive from.")
-@click.option("--steps", type=click.IntRange(1), help="Episode length [default: 512; with a scenario "
-              "directory, the files' length].")
+@click.option("--steps", type=click.IntRange(1), help="Episode length [default: 1024, the paper's test "
+              "length; with a scenario directory, the files' length].")
 @click.option("--out", type=click.Path(file_okay=False), default="out/eval", show_default=True,
               help="Results directory; rerunning the same command there resumes.")
 @click.option("--model", type=click.Path(dir_okay=False), help="Checkpoint of the formic policy.")
@@ -64,6 +64,7 @@ def eval_command(ctx, algorithms, sizes, teams, obstacles, envs, scenarios, seed
     from formic_agent.registry import POLICY_NAMES
     from formic_eval import evaluate, generate_matrix, load_matrix, settings_grid
     from formic_eval.matrix import ENVIRONMENTS
+    from formic_eval.paper import PAPER_STEPS
     from formic_world import ScenarioError
 
     names = _split(algorithms, str, "--algorithms")
@@ -90,7 +91,7 @@ def eval_command(ctx, algorithms, sizes, teams, obstacles, envs, scenarios, seed
             grid = settings_grid(
                 size_list or _split(DEFAULT_SIZES, int, "--sizes"), team_list or _split(DEFAULT_TEAMS, int, "--teams"),
                 obstacle_list if obstacle_list is not None else _split(DEFAULT_OBSTACLES, float, "--obstacles"),
-                env_list or _split(DEFAULT_ENVS, str, "--env"), steps or 512,
+                env_list or _split(DEFAULT_ENVS, str, "--env"), steps or PAPER_STEPS,
             )
             matrix = generate_matrix(grid, count, seed, out_dir / "scenarios")
             source = str(out_dir / "scenarios")

@@ -10,7 +10,8 @@ from formic_world import WorldConfig
 
 
 def world_options(func):
-    """Add --agents --size --steps --seed --obstacles --resources --wipeouts --variant --view."""
+    """Add --agents --size --steps --seed --obstacles --resources --wipeouts --variant --view
+    --no-pheromones --timing."""
     options = [
         click.option("--agents", default=32, show_default=True, help="Team size."),
         click.option("--size", default=128, show_default=True, help="World side (square)."),
@@ -24,6 +25,9 @@ def world_options(func):
                      default="standard", show_default=True, help="Pheromone variant."),
         click.option("--view", default=11, show_default=True, help="Observation window (5, 11, 21)."),
         click.option("--no-pheromones", is_flag=True, help="Agents see an empty pheromone channel."),
+        click.option("--timing", type=click.Choice(["reference", "nominal"]), default="reference",
+                     show_default=True, help="Service timing (SPEC §1): the reference code's (a load "
+                     "takes 11 steps; a queue that moves up serves nobody that step) or exactly 1/rate."),
     ]
     for option in reversed(options):
         func = option(func)
@@ -36,7 +40,7 @@ def world_options(func):
 
 
 WORLD_OPTION_NAMES = ("agents", "size", "steps", "seed", "obstacles", "resources", "wipeouts",
-                      "variant", "view", "no_pheromones")
+                      "variant", "view", "no_pheromones", "timing")
 
 
 def world_config_from(kwargs: dict) -> tuple[WorldConfig, int]:
@@ -48,7 +52,7 @@ def world_config_from(kwargs: dict) -> tuple[WorldConfig, int]:
             episode_steps=values["steps"], obstacle_density=values["obstacles"],
             capacity=values["resources"], wipeouts=values["wipeouts"],
             pheromone_variant=values["variant"], view_size=values["view"],
-            pheromones_visible=not values["no_pheromones"],
+            pheromones_visible=not values["no_pheromones"], timing=values["timing"],
         )
     except ValueError as exc:
         raise click.BadParameter(str(exc)) from exc

@@ -30,7 +30,7 @@ from formic_agent.checkpoint import load_network, read_checkpoint, save_checkpoi
 from formic_agent.network import N_EXTRA_INPUTS, NETWORK_PRESETS, ForMICNet, nest_features
 from formic_agent.policy import AgentBatch
 from formic_agent.registry import make_policy
-from formic_world import Scenario, World, WorldConfig, generate_scenario
+from formic_world import REWARD_PRESETS, Scenario, World, WorldConfig, generate_scenario
 from formic_world.pheromones import curriculum_intensities
 
 
@@ -107,6 +107,8 @@ class TrainConfig:
     imitation_radius: int = 0
     # Techniques (the paper's ablation switches)
     action_filter: str = "replace"  # "replace" (paper) | "mask" (mask invalid logits) | "none"
+    training_filter: str = "paper"  # carrying agents' filter: "paper" | "reference" (SPEC §4)
+    rewards: str = "paper"  # a formic_world.REWARD_PRESETS name: "paper" | "reference" (SPEC §4)
     pheromones: bool = True  # False: train (and test) without pheromones
     curriculum: bool = True
     curriculum_start: int = 5000
@@ -118,6 +120,10 @@ class TrainConfig:
     threads: int = 1
 
     def __post_init__(self) -> None:
+        if self.rewards not in REWARD_PRESETS:
+            raise ValueError(f"rewards must be one of {sorted(REWARD_PRESETS)}, not {self.rewards!r}")
+        if self.training_filter not in ("paper", "reference"):
+            raise ValueError(f"training_filter must be 'paper' or 'reference', not {self.training_filter!r}")
         if self.imitation_agents not in ("loaded", "all"):
             raise ValueError(f"imitation_agents must be 'loaded' or 'all', not {self.imitation_agents!r}")
         if len(self.world_sizes) < len(self.teams):
@@ -190,6 +196,7 @@ def sample_scenarios(cfg: TrainConfig, rng: np.random.Generator,
             episode_steps=cfg.episode_steps, view_size=cfg.view_size,
             highway_intensity=highway, deposit_strength=deposit,
             pheromones_visible=cfg.pheromones, training_start=cfg.training_start,
+            training_filter=cfg.training_filter, rewards=REWARD_PRESETS[cfg.rewards],
         )
         scenarios.append(generate_scenario(config, int(rng.integers(2**31))))
     return scenarios, highway, deposit

@@ -1,11 +1,12 @@
 """ForMIC world: the simulation core (no ROS), scenarios, rendering and a PettingZoo wrapper."""
 
-from .config import RewardConfig, WorldConfig
+from .config import REWARD_PRESETS, RewardConfig, WorldConfig
 from .scenario import Scenario, ScenarioError, generate_scenario
 from .world import NO_ACTION, StepResult, World, make_world
 
 __all__ = [
     "NO_ACTION",
+    "REWARD_PRESETS",
     "RewardConfig",
     "Scenario",
     "ScenarioError",

@@ -15,6 +15,9 @@ from typing import Any
 
 PHEROMONE_VARIANTS = ("standard", "flat", "noisy", "random")
 CAPACITY_MODES = ("infinite", "finite")
+TIMINGS = ("reference", "nominal")
+AGENT_ORDERS = ("random", "id")
+TRAINING_FILTERS = ("paper", "reference")
 
 
 @dataclass(frozen=True)
@@ -28,6 +31,17 @@ class RewardConfig:
     join_right: float = 0.0  # entering the right queue
     join_wrong: float = -1.0  # trying to enter the wrong type of queue
     join_nothing: float = -0.05  # JOIN with no queue in reach: a wasted step, like a failed move
+    blocked: float = -0.05  # a move that fails (wall, obstacle, agent): the paper charges it as a move
+    # Collection pays collect * exp(-collect_distance_decay * d), d the resource cell's Euclidean
+    # distance to the nest centre (0: flat, the paper; the reference code used 0.0115).
+    collect_distance_decay: float = 0.0
+
+
+# Named reward sets (SPEC §4): the paper's table, and what the authors' code trained with.
+REWARD_PRESETS: dict[str, RewardConfig] = {
+    "paper": RewardConfig(),
+    "reference": RewardConfig(deposit=5.0, collect_distance_decay=0.0115, blocked=-0.5, join_nothing=-0.5),
+}
 
 
 @dataclass(frozen=True)
@@ -45,6 +59,12 @@ class WorldConfig:
     gather_rate: float = 0.1
     dropoff_rate: float = 0.5
     episode_steps: int = 512
+    # Service timing (SPEC §1 "Timing"): "reference" reproduces the authors' code (a load takes
+    # 11 steps, a queue that moved up serves nobody that step); "nominal" is exactly 1/rate.
+    timing: str = "reference"
+    # Who acts first each step: a fresh seeded permutation (SPEC §1), or agent id order (the
+    # reference code's loop, used only by the reference baseline variants).
+    agent_order: str = "random"
     # Pheromones (SPEC §2)
     alpha: float = 0.97  # per-deposit decay of an agent's intensity
     beta: float = 0.99  # per-step evaporation of the map
@@ -59,6 +79,9 @@ class WorldConfig:
     # Training-only start: a random number in [0, min(this, N)] agents begin in cache queues loaded
     training_start: bool = False
     training_start_max_queued: int = 20
+    # Training filter for carrying agents (SPEC §4): "paper" forbids moves away from the nest;
+    # "reference" allows only the (at most two) moves best aligned with the nest direction.
+    training_filter: str = "paper"
     rewards: RewardConfig = field(default_factory=RewardConfig)
 
     def __post_init__(self) -> None:
@@ -68,6 +91,12 @@ class WorldConfig:
             raise ValueError("n_agents must be >= 1")
         if self.capacity not in CAPACITY_MODES:
             raise ValueError(f"capacity must be one of {CAPACITY_MODES}, got {self.capacity!r}")
+        if self.timing not in TIMINGS:
+            raise ValueError(f"timing must be one of {TIMINGS}, got {self.timing!r}")
+        if self.agent_order not in AGENT_ORDERS:
+            raise ValueError(f"agent_order must be one of {AGENT_ORDERS}, got {self.agent_order!r}")
+        if self.training_filter not in TRAINING_FILTERS:
+            raise ValueError(f"training_filter must be one of {TRAINING_FILTERS}, got {self.training_filter!r}")
         if self.pheromone_variant not in PHEROMONE_VARIANTS:
             raise ValueError(
                 f"pheromone_variant must be one of {PHEROMONE_VARIANTS}, got {self.pheromone_variant!r}"
@@ -111,6 +140,32 @@ class WorldConfig:
         return int(Fraction(self.dropoff_rate).limit_denominator(10_000) * self.load_denominator)
 
     @property
+    def gather_holds(self) -> bool:
+        """Reference timing: a full load is released one service step late when the
+        reference's floating-point accumulation of ``gather_rate`` falls short of 1."""
+        return self.timing == "reference" and _float_steps(self.gather_rate) > -(-self.load_denominator // self.gather_ticks)
+
+    @property
+    def dropoff_holds(self) -> bool:
+        """As :attr:`gather_holds`, for emptying at a cache (0.5 adds up exactly: no hold)."""
+        return self.timing == "reference" and _float_steps(self.dropoff_rate) > -(-self.load_denominator // self.dropoff_ticks)
+
+    @property
+    def gather_steps(self) -> int:
+        """Service steps to fill a unit load at a resource (10 nominal, 11 reference)."""
+        return -(-self.load_denominator // self.gather_ticks) + int(self.gather_holds)
+
+    @property
+    def dropoff_steps(self) -> int:
+        """Service steps to empty a unit load at a cache (2 under both timings)."""
+        return -(-self.load_denominator // self.dropoff_ticks) + int(self.dropoff_holds)
+
+    @property
+    def serve_after_move_up(self) -> bool:
+        """Nominal timing serves spot 0 in the step its queue moved up; the reference does not."""
+        return self.timing == "nominal"
+
+    @property
     def effective_alpha(self) -> float:
         """The ``flat`` variant sets alpha = beta so a trail carries no gradient."""
         return self.beta if self.pheromone_variant == "flat" else self.alpha
@@ -142,6 +197,16 @@ class WorldConfig:
         """Short stable hash of the configuration, recorded with runs."""
         text = json.dumps(self.to_dict(), sort_keys=True)
         return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def _float_steps(rate: float) -> int:
+    """Steps the reference code needs to fill (or empty) a unit load by adding ``rate`` in
+    floating point until the sum reaches 1: 11 for 0.1 (ten additions give 0.9999999999999999)."""
+    total, steps = 0.0, 0
+    while total < 1.0:
+        total += rate
+        steps += 1
+    return steps
 
 
 def _gcd(a: int, b: int) -> int:

@@ -89,7 +89,7 @@ def act_agents(
     order, actions, grid, agent_at, pos, load, queue_of, spot_of, intensity, last_move,
     queue_cells, queue_is_cache, queue_resource, queue_members, queue_count, queue_head,
     resource_remaining, entry_owner, pheromone, deposit_values, scale_by_intensity, deposits_on, alpha,
-    load_full, reward, r_move, r_wait, r_join_right, r_join_wrong, r_join_nothing,
+    load_full, reward, r_move, r_wait, r_join_right, r_join_wrong, r_join_nothing, r_blocked,
 ):
     """Phase 2 of a step: every free agent acts once, in ``order``."""
     height, width = grid.shape
@@ -104,13 +104,15 @@ def act_agents(
         row, col = pos[a, 0], pos[a, 1]
         carrying = load[a] > 0
         if act < 4:
-            reward[a] += r_move
             nr, nc = row + _DR[act], col + _DC[act]
             if 0 <= nr < height and 0 <= nc < width and grid[nr, nc] == 0 and agent_at[nr, nc] == -1:
+                reward[a] += r_move
                 agent_at[row, col] = -1
                 agent_at[nr, nc] = a
                 pos[a, 0], pos[a, 1] = nr, nc
                 last_move[a] = act
+            else:
+                reward[a] += r_blocked
         else:
             outcome, q = find_join(
                 a, row, col, carrying, entry_owner, agent_at, queue_is_cache, queue_resource,
@@ -170,13 +172,21 @@ def serve_queues(
     agent_at, pos, load, queue_of, spot_of, intensity, queue_cells, queue_is_cache,
     queue_resource, queue_members, queue_count, queue_head, resource_remaining,
     gather_ticks, dropoff_ticks, load_full, reward, r_collect, r_deposit, depleted,
+    gather_holds, dropoff_holds, serve_after_move_up,
 ):
-    """Phase 3: queues advance, spot 0 is served; returns food ticks unloaded at the nest."""
+    """Phase 3: queues advance, spot 0 is served; returns food ticks unloaded at the nest.
+    ``r_collect`` holds each resource's collection reward.
+
+    Timing (``WorldConfig.timing``): with ``serve_after_move_up`` False a queue that moves up
+    serves nobody in that step; with ``gather_holds``/``dropoff_holds`` a service that has
+    completed is only released at the agent's next service step (one step longer).
+    """
     queue_len = queue_cells.shape[1]
     unloaded = 0
     for q in range(queue_cells.shape[0]):
         if queue_count[q] == 0:
             continue
+        moved_up = False
         if queue_head[q] > 0 and agent_at[queue_cells[q, 0, 0], queue_cells[q, 0, 1]] == -1:
             # Spot 0 is free: every queued agent moves up one spot (members are contiguous).
             head = queue_head[q]
@@ -189,29 +199,38 @@ def serve_queues(
                 queue_members[q, s] = -1
                 spot_of[a] = s - 1
             queue_head[q] = head - 1
-        if queue_head[q] != 0:
+            moved_up = True
+        if queue_head[q] != 0 or (moved_up and not serve_after_move_up):
             continue
         a = queue_members[q, 0]
+        amount = 0
         if queue_is_cache[q]:
-            amount = min(dropoff_ticks, load[a])
-            load[a] -= amount
-            unloaded += amount
-            if load[a] == 0:
+            if load[a] > 0:
+                amount = min(dropoff_ticks, load[a])
+                load[a] -= amount
+                unloaded += amount
+            if load[a] == 0 and not (dropoff_holds and amount > 0):
                 reward[a] += r_deposit
                 _release(q, 0, queue_members, queue_count, queue_head, queue_of, spot_of, queue_len)
         else:
             res = queue_resource[q]
-            amount = min(gather_ticks, load_full - load[a])
-            if resource_remaining[res] >= 0:
-                amount = min(amount, resource_remaining[res])
-                resource_remaining[res] -= amount
-            load[a] += amount
-            if load[a] == load_full:
-                reward[a] += r_collect
+            if load[a] < load_full:
+                amount = min(gather_ticks, load_full - load[a])
+                if resource_remaining[res] >= 0:
+                    amount = min(amount, resource_remaining[res])
+                    resource_remaining[res] -= amount
+                load[a] += amount
+            if load[a] == load_full and not (gather_holds and amount > 0):
+                reward[a] += r_collect[res]
                 intensity[a] = 1.0
                 _release(q, 0, queue_members, queue_count, queue_head, queue_of, spot_of, queue_len)
             if resource_remaining[res] == 0:
-                # Depleted: everyone still queued is released where they stand.
+                # Depleted: everyone still queued is released where they stand; a full agent
+                # held for its last service step leaves now, with its load.
+                if queue_members[q, 0] >= 0 and load[queue_members[q, 0]] == load_full:
+                    full = queue_members[q, 0]
+                    reward[full] += r_collect[res]
+                    intensity[full] = 1.0
                 for s in range(queue_len):
                     if queue_members[q, s] >= 0:
                         _release(q, s, queue_members, queue_count, queue_head, queue_of, spot_of, queue_len)

@@ -31,7 +31,7 @@ from .geometry import (
 )
 
 SCENARIO_FORMAT = "formic-scenario"
-SCENARIO_VERSION = 1
+SCENARIO_VERSION = 2  # 2: the configuration carries ``timing``; version 1 files ran nominal timing
 _PLACEMENT_TRIES = 200  # per resource strip before the whole layout is redrawn
 _LAYOUT_TRIES = 100
 
@@ -86,12 +86,18 @@ class Scenario:
             raise ScenarioError("scenario must be a JSON object")
         if data.get("format") != SCENARIO_FORMAT:
             raise ScenarioError(f"not a ForMIC scenario (format={data.get('format')!r})")
-        if data.get("version") != SCENARIO_VERSION:
+        version = data.get("version")
+        if version not in (1, SCENARIO_VERSION):
             raise ScenarioError(
-                f"scenario version {data.get('version')!r} is not supported (expected {SCENARIO_VERSION})"
+                f"scenario version {version!r} is not supported (expected 1 or {SCENARIO_VERSION})"
             )
         try:
-            config = WorldConfig.from_dict(data["config"])
+            config_data = data["config"]
+            if version == 1:
+                if not isinstance(config_data, dict) or "timing" in config_data:
+                    raise ScenarioError("a version 1 scenario has no timing in its configuration")
+                config_data = {**config_data, "timing": "nominal"}  # the only rule version 1 knew
+            config = WorldConfig.from_dict(config_data)
             scenario = cls(
                 config=config,
                 seed=int(data["seed"]),

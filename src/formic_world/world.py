@@ -7,12 +7,15 @@ One time step (SPEC §1), in this order:
    generator (``kernels.act_agents``). Moves into in-bounds free cells succeed at once;
    JOIN takes the nearest joinable queue of the right type (entry cell or a neighbour of it);
    a carrying agent deposits pheromone on the cell it stood on, then its intensity decays.
-3. Queues advance when spot 0 is empty, and spot 0 is served (``kernels.serve_queues``).
+3. Queues advance when spot 0 is empty, and spot 0 is served (``kernels.serve_queues``):
+   under the default ``timing="reference"`` a queue that moved up serves nobody this step and
+   a load at a resource takes 11 steps (SPEC §1 "Timing"); ``timing="nominal"`` is exactly
+   1/rate steps and serves in the step the queue moved up.
    Depleted finite resources vanish, release their queue and reappear elsewhere.
 4. Rewards are final; observations and action masks are produced.
 
 Loads are integers in units of 1/D (``WorldConfig.load_denominator``) so gathering and
-drop-off take exactly 1/rate steps.
+drop-off take exactly 1/rate service steps (plus the reference timing's held step).
 """
 
 from __future__ import annotations
@@ -169,7 +172,7 @@ class World:
             self.pheromone[:] = 0.0
 
         # 2. free agents act one at a time in a seeded random order
-        order = self.rng.permutation(n)
+        order = np.arange(n) if cfg.agent_order == "id" else self.rng.permutation(n)
         values = deposit_values(cfg, self.rng, n)
         self.rewards = np.zeros(n, dtype=np.float64)
         r = cfg.rewards
@@ -180,7 +183,7 @@ class World:
             self.entry_owner, self.pheromone, values, cfg.pheromone_variant != "random",
             (not wiping) and cfg.deposit_strength > 0,
             cfg.effective_alpha, self.load_full, self.rewards, r.move, r.queue_wait, r.join_right,
-            r.join_wrong, r.join_nothing,
+            r.join_wrong, r.join_nothing, r.blocked,
         )
 
         # 3. queues advance and serve; finite resources deplete and respawn
@@ -189,7 +192,8 @@ class World:
             self.agent_at, self.pos, self.load, self.queue_of, self.spot_of, self.intensity,
             self.queue_cells, self.queue_is_cache, self.queue_resource, self.queue_members,
             self.queue_count, self.queue_head, self.resource_remaining, self.gather_ticks,
-            self.dropoff_ticks, self.load_full, self.rewards, r.collect, r.deposit, depleted,
+            self.dropoff_ticks, self.load_full, self.rewards, self.collect_reward(), r.deposit, depleted,
+            cfg.gather_holds, cfg.dropoff_holds, cfg.serve_after_move_up,
         )
         for q in np.flatnonzero(depleted):
             self._respawn(int(q))
@@ -239,6 +243,16 @@ class World:
             return
         raise RuntimeError("no room to respawn a resource")
 
+    def collect_reward(self) -> np.ndarray:
+        """Each resource's collection reward: flat (the paper), or falling with the resource's
+        distance to the nest centre (``RewardConfig.collect_distance_decay``, the reference)."""
+        r = self.config.rewards
+        if r.collect_distance_decay == 0.0:
+            return np.full(len(self.resource_pos), r.collect)
+        centre = np.asarray(nest_centre(self.config.height, self.config.width), dtype=np.float64)
+        distance = np.hypot(*(self.resource_pos - centre).T)
+        return r.collect * np.exp(-r.collect_distance_decay * distance)
+
     # ------------------------------------------------------------ observation
     def _result(self, food: float) -> StepResult:
         return StepResult(
@@ -262,7 +276,8 @@ class World:
         """The training filter (SPEC §4) on top of environment validity.
 
         Carrying agents may not move away from the nest (negative dot product with the vector
-        to the nest centre) and empty agents may not reverse their last move, unless that
+        to the nest centre; with ``training_filter="reference"``, as the authors' code, only the
+        two possible moves best aligned with it) and empty agents may not reverse their last move, unless that
         leaves no possible move.
         """
         valid = self.action_mask() if valid is None else valid
@@ -270,7 +285,15 @@ class World:
         cr, cc = nest_centre(self.config.height, self.config.width)
         to_nest = np.stack([cr - self.pos[:, 0], cc - self.pos[:, 1]], axis=1)
         dots = to_nest @ DIRECTION_DELTAS.T  # (N, 4)
-        forbidden = np.where(self.carrying[:, None], dots < 0, False)
+        if self.config.training_filter == "reference":
+            # the two best-aligned possible moves, whatever their sign (ties: lower action first)
+            ranked = np.argsort(-np.where(moves, dots, -np.inf), axis=1, kind="stable")
+            best_two = np.zeros_like(moves)
+            np.put_along_axis(best_two, ranked[:, :2], True, axis=1)
+            away = ~best_two
+        else:
+            away = dots < 0
+        forbidden = np.where(self.carrying[:, None], away, False)
         reverse = (self.last_move + 2) % 4
         empty_reverse = (~self.carrying) & (self.last_move >= 0)
         forbidden[np.flatnonzero(empty_reverse), reverse[empty_reverse]] = True
