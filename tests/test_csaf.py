@@ -6,13 +6,25 @@ The 16x16 layout (nest caches and their queues) is described in conftest.py. Mov
 
 from __future__ import annotations
 
-import numpy as np
-from conftest import SE_QUEUE, agent, build_world, cells_of, resource
+import json
 
+import numpy as np
+import pytest
+from conftest import SE_QUEUE, agent, build_world, cells_of, resource, step
+
+from formic_agent.episode import run_episode
 from formic_agent.policy import AgentBatch
-from formic_baselines.csaf import CLIMB, LEAVE, NO_TRAIL, CSAF11Policy, CSAFPolicy
-from formic_world import World, WorldConfig, generate_scenario
-from formic_world.geometry import EAST, JOIN, SOUTH, WEST
+from formic_agent.registry import (
+    POLICY_NAMES,
+    POLICY_WORLD_OVERRIDES,
+    apply_world_overrides,
+    make_policy,
+    parse_team,
+    world_overrides,
+)
+from formic_baselines.csaf import CLIMB, LEAVE, NO_TRAIL, CSAF11Policy, CSAFPolicy, PheromoneGround
+from formic_world import Scenario, World, WorldConfig, generate_scenario
+from formic_world.geometry import EAST, JOIN, NORTH, SOUTH, WEST
 
 
 def act(policy, world, result=None) -> np.ndarray:
@@ -180,3 +192,170 @@ def test_same_seed_same_food():
     assert episode(CSAFPolicy(), 32, 8, seed=3) == first
     policy = CSAF11Policy()
     assert episode(policy, 32, 8, seed=3) == episode(policy, 32, 8, seed=3)  # reset forgets all
+
+
+# ------------------------------------------------------------ the reference variant (csaf-ref)
+def act_for(policy, world, ids=(0,)) -> list[int]:
+    """The policy drives only ``ids``; the other agents stand still (a JOIN away from queues)."""
+    return policy.act(AgentBatch.from_world(world, agent_ids=np.array(ids))).tolist()
+
+
+def drive_one(policy, world, steps: int) -> list[int]:
+    """Agent 0 driven by ``policy`` for ``steps`` steps; returns its actions."""
+    chosen = []
+    for _ in range(steps):
+        (action,) = act_for(policy, world)
+        chosen.append(action)
+        step(world, {0: action})
+    return chosen
+
+
+def test_reference_variant_names_and_registry():
+    assert CSAFPolicy(reference=True).name == "csaf-ref"
+    assert CSAF11Policy(reference=True).name == "csaf11-ref" and CSAF11Policy(reference=True).view == 11
+    for name in ("csaf-ref", "csaf11-ref"):
+        policy = make_policy(name)
+        assert policy.name == name and policy.reference and ":" not in name and name in POLICY_NAMES
+    assert not make_policy("csaf").reference and not make_policy("csaf11").reference
+
+
+def test_blocked_reference_agent_retries_its_move_while_the_default_steps_aside():
+    # A loaded agent at (2,7) with no pheromone around heads straight south for the nest;
+    # an agent that never moves stands at (3,7).
+    def world():
+        return build_world([agent(2, 7, loaded=True), agent(3, 7)])
+
+    ref, default = CSAFPolicy(reference=True), CSAFPolicy()
+    ref.reset(2, seed=0)
+    default.reset(2, seed=0)
+    w = world()
+    assert drive_one(ref, w, 6) == [SOUTH] * 6  # tries the taken cell again and again
+    assert cells_of(w, 0) == (2, 7)
+    step(w, {1: EAST})  # the way clears: it goes on at once
+    assert drive_one(ref, w, 1) == [SOUTH] and cells_of(w, 0) == (3, 7)
+    w = world()
+    assert drive_one(default, w, 1) != [SOUTH] and cells_of(w, 0) != (2, 7)  # stepped aside
+
+
+def test_reference_ties_go_north_east_south_west():
+    # A loaded agent at (3,3) descends the search gradient: neighbours marked at the same
+    # step are equally good ways home.
+    def first_move(policy, marked, seed=0):
+        policy.reset(1, seed=seed)
+        policy.ground = PheromoneGround((16, 16), policy.search_decay)
+        for cell in marked:
+            policy.ground.marked_at[cell] = 5
+        return act_for(policy, build_world([agent(3, 3, loaded=True)]))[0]
+
+    n, e, s, w = (2, 3), (3, 4), (4, 3), (3, 2)
+    ref = CSAFPolicy(reference=True)
+    assert first_move(ref, [n, e, s, w]) == NORTH
+    assert first_move(ref, [e, s, w]) == EAST
+    assert first_move(ref, [w, s]) == SOUTH
+    assert {first_move(ref, [n, e, s, w], seed) for seed in range(8)} == {NORTH}
+    assert len({first_move(CSAFPolicy(), [n, e, s, w], seed) for seed in range(8)}) > 1
+    # Diagonal offsets: the two moves towards the nest in N, E, S, W order.
+    for cell, move in (((2, 2), EAST), ((13, 13), NORTH), ((2, 13), SOUTH), ((13, 2), NORTH)):
+        ref.reset(1, seed=0)
+        assert act_for(ref, build_world([agent(*cell, loaded=True)]))[0] == move
+
+
+def test_reference_search_fallback_ignores_agents():
+    # Searching north at (3,3); itself, north, east and south marked; west unmarked but
+    # taken by an agent. The default climbs to a newer mark (north or east); the reference
+    # takes the unmarked cell anyway and waits for it.
+    def first_moves(policy, steps=3):
+        policy.reset(2, seed=0)
+        policy.ground = PheromoneGround((16, 16), policy.search_decay)
+        for cell, at in (((3, 3), 1), ((2, 3), 2), ((3, 4), 2), ((4, 3), 2)):
+            policy.ground.marked_at[cell] = at
+        return drive_one(policy, build_world([agent(3, 3), agent(3, 2)]), steps)
+
+    assert first_moves(CSAFPolicy(reference=True)) == [WEST] * 3
+    assert first_moves(CSAFPolicy(), 1)[0] in (NORTH, EAST)
+
+
+def test_reference_agent_that_just_unloaded_waits_while_its_view_corner_is_taken():
+    # A unloads at the NE cache's spot 0 (6,8); B stands 5 south and 5 east of it, at (11,13).
+    def unload(policy):
+        world = build_world([agent(6, 8, True, 1), agent(11, 13)])
+        policy.reset(2, seed=0)
+        for _ in range(10):
+            step(world, {0: act_for(policy, world)[0]})
+            if not world.queued[0]:
+                return world
+        raise AssertionError("never unloaded")
+
+    ref = CSAFPolicy(reference=True)
+    world = unload(ref)
+    assert drive_one(ref, world, 3) == [SOUTH] * 3 and cells_of(world, 0) == (6, 8)  # into the cache
+    step(world, {1: EAST})
+    assert drive_one(ref, world, 1) != [SOUTH] and cells_of(world, 0) != (6, 8)
+    default = CSAFPolicy()
+    world = unload(default)
+    drive_one(default, world, 1)
+    assert cells_of(world, 0) != (6, 8)
+
+
+def test_reference_variant_draws_no_random_numbers():
+    scenario = apply_world_overrides(
+        generate_scenario(WorldConfig(height=32, width=32, n_agents=8), seed=4), ["csaf-ref"])
+    runs = []
+    for seed in (0, 1):  # the policy's seed changes nothing
+        world, policy = World(scenario), CSAF11Policy(reference=True)
+        policy.reset(8, seed=seed)
+        runs.append(drive(policy, world, 120, watch=3))
+        assert policy.rng.bit_generator.state == np.random.default_rng([seed, 13]).bit_generator.state
+    assert runs[0] == runs[1]
+
+
+def test_world_overrides_of_the_reference_variants():
+    needs = {"queue_len": 1, "agent_order": "id"}
+    assert world_overrides(["csaf-ref"]) == needs and POLICY_WORLD_OVERRIDES["csaf11-ref"] == needs
+    assert world_overrides(["csaf11-ref", "csaf-ref", "csaf11-ref"]) == needs
+    assert world_overrides(["formic", "csaf", "csaf11", "cardinality"]) == {}
+    with pytest.raises(ValueError, match="csaf11-ref needs queue_len=1.*formic needs the scenario's own"):
+        world_overrides(["csaf11-ref", "formic"])
+    scenario = generate_scenario(WorldConfig(height=32, width=32, n_agents=8), seed=0)
+    assert apply_world_overrides(scenario, ["csaf"]) is scenario
+    changed = apply_world_overrides(scenario, ["csaf11-ref"])
+    assert changed.config == scenario.config.replace(**needs) and changed.agents == scenario.agents
+    assert Scenario.from_json(changed.to_json()).config.queue_len == 1  # stored and reloaded
+    team = parse_team("csaf11-ref:0-3,csaf-ref:4-7", 8)
+    assert [name for name, _ in team.groups] == ["csaf11-ref", "csaf-ref"]
+
+
+def test_runs_of_the_reference_variants_get_their_world(tmp_path, monkeypatch):
+    from click.testing import CliRunner
+
+    import formic_agent.episode
+    from formic_cli.main import cli
+    from formic_eval import runner
+    from formic_eval.matrix import PolicyOptions, Setting, generate_matrix, plan_tasks
+
+    scenario = generate_scenario(WorldConfig(height=32, width=32, n_agents=4, episode_steps=20), seed=0)
+    result = run_episode(scenario, "csaf11-ref")  # run_episode itself
+    assert result.world.scenario.config.queue_len == 1 and result.world.config.agent_order == "id"
+    assert run_episode(scenario, "csaf11").world.config.queue_len == 5
+
+    matrix = generate_matrix([Setting(32, 4, 0.0, "infinite", 20)], 1, seed=0, directory=tmp_path / "set")
+    (task,) = plan_tasks(matrix, ["csaf-ref"], PolicyOptions())
+    ran = []
+
+    def spy(scenario, *args, **kwargs):  # the scenario the runner hands over
+        ran.append(scenario.config)
+        return run_episode(scenario, *args, **kwargs)
+
+    monkeypatch.setattr(formic_agent.episode, "run_episode", spy)
+    record = runner.run_task(task)
+    monkeypatch.undo()
+    assert [(c.queue_len, c.agent_order) for c in ran] == [(1, "id")]
+    assert record["world_overrides"] == {"queue_len": 1, "agent_order": "id"}
+    assert Scenario.load(task.scenario.path).config.queue_len == 5  # the stored file is untouched
+
+    args = ["sim", "--size", "32", "--agents", "4", "--steps", "20", "--json", "--out", str(tmp_path / "sim")]
+    out = CliRunner().invoke(cli, args + ["--policy", "csaf-ref"])
+    assert out.exit_code == 0, out.output
+    assert json.loads(out.output.strip().splitlines()[-1])["world_overrides"] == {"queue_len": 1, "agent_order": "id"}
+    out = CliRunner().invoke(cli, args + ["--policy", "csaf-ref:0-1,formic:2-3"])
+    assert out.exit_code != 0 and "cannot share one world" in out.output

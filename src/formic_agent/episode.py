@@ -15,7 +15,7 @@ import numpy as np
 from formic_world import Scenario, World
 
 from .policy import AgentBatch, CentralPolicy, Policy
-from .registry import TeamAssignment, make_policy, parse_team
+from .registry import TeamAssignment, apply_world_overrides, make_policy, parse_team
 
 
 @dataclass
@@ -50,10 +50,13 @@ def run_episode(
     on_step: Callable[[World], None] | None = None,
     record_digests: bool = False,
 ) -> EpisodeResult:
-    """Run ``scenario`` to its end (or ``steps``) with the given team of policies."""
+    """Run ``scenario`` to its end (or ``steps``) with the given team of policies, in the world
+    the team's policies need (registry.POLICY_WORLD_OVERRIDES; ``result.world.scenario`` is the
+    scenario that ran)."""
+    team = parse_team(policy, scenario.config.n_agents) if isinstance(policy, str) else policy
+    scenario = apply_world_overrides(scenario, [name for name, _ in team.groups])
     cfg = scenario.config
     n = cfg.n_agents
-    team = parse_team(policy, n) if isinstance(policy, str) else policy
     members = policies if policies is not None else build_team(team, model=model, greedy=greedy)
     for p, _ in members:
         p.reset(n, scenario.seed)

@@ -1,17 +1,66 @@
-"""Policy names on the command line -> policy objects, and team assignments like
-``formic:0-31,csaf11:32-63``."""
+"""Policy names on the command line -> policy objects, team assignments like
+``formic:0-31,csaf11:32-63``, and the world settings a policy needs for its run."""
 
 from __future__ import annotations
 
+import dataclasses
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from .policy import CentralPolicy, Policy
 
-POLICY_NAMES = ("formic", "random", "csaf", "csaf11", "cardinality", "planner")
+if TYPE_CHECKING:
+    from formic_world import Scenario
+
+# Names never contain ':' (team specs are NAME:RANGES).
+POLICY_NAMES = ("formic", "random", "csaf", "csaf11", "csaf-ref", "csaf11-ref", "cardinality", "planner")
 DEFAULT_MODEL = Path(__file__).resolve().parents[2] / "models" / "formic_cpu.pt"
+
+# The world settings (WorldConfig fields) a policy's run needs, over the scenario's own: the
+# reference variants of C-SAF run as the authors' code did (formic_baselines.csaf docstring).
+# Every run that builds its world from a scenario for a team applies them
+# (apply_world_overrides): formic sim, formic eval, formic run.
+_REFERENCE_CODE_WORLD = {"queue_len": 1, "agent_order": "id"}
+POLICY_WORLD_OVERRIDES: dict[str, dict[str, Any]] = {
+    "csaf-ref": _REFERENCE_CODE_WORLD,
+    "csaf11-ref": _REFERENCE_CODE_WORLD,
+}
+
+
+def world_overrides(policy_names: Iterable[str]) -> dict[str, Any]:
+    """The world settings a team of these policies needs (empty: the scenario's own). Every
+    policy in a team must need the same ones: a policy with none needs the scenario's world,
+    so mixing ``csaf11-ref`` (one-slot queues) with ``formic`` raises ValueError."""
+    names = list(dict.fromkeys(policy_names))
+    wanted = {name: POLICY_WORLD_OVERRIDES.get(name, {}) for name in names}
+    distinct = {tuple(sorted(v.items())) for v in wanted.values()}
+    if len(distinct) > 1:
+        needs = "; ".join(
+            f"{name} needs " + (", ".join(f"{k}={v!r}" for k, v in o.items()) or "the scenario's own world")
+            for name, o in wanted.items()
+        )
+        raise ValueError(f"these policies cannot share one world ({needs}): run them separately")
+    return dict(next(iter(wanted.values()), {}))
+
+
+def apply_world_overrides(scenario: Scenario, policy_names: Iterable[str]) -> Scenario:
+    """``scenario`` with the world settings these policies need (itself when there are none);
+    the result is validated like a loaded scenario."""
+    from formic_world.scenario import validate_scenario
+
+    overrides = world_overrides(policy_names)
+    if not overrides:
+        return scenario
+    config = scenario.config.replace(**overrides)
+    if config == scenario.config:
+        return scenario
+    changed = dataclasses.replace(scenario, config=config)
+    validate_scenario(changed)
+    return changed
 
 
 def make_policy(name: str, model: str | Path | None = None, greedy: bool = False) -> Policy | CentralPolicy:
@@ -28,6 +77,10 @@ def make_policy(name: str, model: str | Path | None = None, greedy: bool = False
         from formic_baselines.csaf import CSAF11Policy
 
         return CSAF11Policy()
+    if name in ("csaf-ref", "csaf11-ref"):  # the world settings: POLICY_WORLD_OVERRIDES
+        from formic_baselines.csaf import CSAF11Policy, CSAFPolicy
+
+        return CSAFPolicy(view=3, reference=True) if name == "csaf-ref" else CSAF11Policy(reference=True)
     if name == "cardinality":
         from formic_baselines.cardinality import CardinalityPolicy
 

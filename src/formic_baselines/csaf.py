@@ -51,7 +51,7 @@ Decisions where the paper, the SPEC and the reference code are vague:
   to the one resource visible from it).
 - Anti-deadlock: ties are broken at random; when the wanted cell is taken, take another
   useful move, else wait or step aside at random. Staying is a move into a wall, else a JOIN
-  that has no effect.
+  that has no effect. (The reference variant below does neither.)
 - Start: each agent's first heading points away from the nest (diagonal ties split by agent
   id), and with nothing marked around it walks straight: the team leaves in different
   directions.
@@ -62,6 +62,50 @@ Decisions where the paper, the SPEC and the reference code are vague:
 - Every agent reads the ground as it was at the start of the step; the marks laid during a
   step land when the next step begins, so splitting a step's agents over several batches
   changes nothing.
+
+The reference variant (``csaf-ref``, ``csaf11-ref``)
+-----------------------------------------------------
+``CSAFPolicy(reference=True)`` (and ``CSAF11Policy(reference=True)``) reproduces how the
+authors' code (github marmotlab/ForMIC, ``csaf_policy.py`` and ``csaf_policy_11.py``) runs
+C-SAF: its teams jam at the nest, which is why the paper's C-SAF curves fall with team size.
+The defaults (``csaf``, ``csaf11``) stay the baselines we report: they run in the same world
+as every other algorithm (five-slot queues, SPEC §1; a fresh random agent order each step) and
+resolve collisions instead of deadlocking, so their numbers measure C-SAF's rules.
+The variant's numbers measure a different world (one-slot queues for C-SAF's runs only) and
+a harness in which blocked agents deadlock. The differences, each from the reference code:
+
+- One-slot queues: its controller sets every queue's length to 1 (``rc.queue.length = 1``,
+  caches and resources alike). The variant's run needs ``queue_len=1`` in the world:
+  ``formic_agent.registry.POLICY_WORLD_OVERRIDES``, which ``formic sim``, ``formic eval`` and
+  ``formic run`` apply to the run's scenario (so the scenario recorded shows it).
+- Agents act in id order: its ``step_all_agents`` loop moves agent 1, then 2, ..., each
+  seeing the moves before it; the world's ``agent_order="id"`` (same override).
+- A blocked agent never yields: it keeps the action it tried as its heading, and its rules
+  return a move into a taken cell ("going to be invalid (blocked) ... better to no-op"; the
+  nest orbit keeps going ahead; the run to a resource repeats its move until it stands on
+  the entry). Here, wherever the default takes another useful move, side-steps or waits at
+  random (``_sidestep``), the variant retries the move it wanted (``_retry``): the move fails
+  and the agent waits, heading kept, until the cell clears; a straight walk waits behind an
+  agent instead of turning. Rules that choose among several free cells still do (as the
+  reference's gradient rules take the first free one); a wall is still walked around, in a
+  fixed order (retrying into a wall would never end). JOIN is still chosen only when the
+  world allows it (a full one-slot queue shows no entry, in the reference too).
+- Ties go N, E, S, W (its ``argmax``, ``np.where(...)[0][0]`` and ordered ``if`` chains):
+  equal pheromone, the two moves towards a diagonal offset, a wall turn (the lower of right
+  and left); equally near queue cells clockwise from north; where trails meet, the smallest
+  key. The variant draws no random numbers at all.
+- Reproduced slips: (1) searching, when right, ahead and left are all marked or taken, the
+  reference's fallback takes an unmarked neighbour in N, E, S, W order looking at obstacles
+  only, not at agents; the variant does so (and retries a taken one) where the default
+  would turn back to a free unmarked cell only. (2) Just after unloading, the reference
+  checks the cell behind the agent with the heading of its JOIN, which reads its 11x11
+  view's corner (+5, +5): it waits while any agent stands there; so does the variant (when
+  the world's view is at least 11x11).
+
+Evidence, measured on an earlier version of this variant (one-slot queues, blocked agents
+always wait, ties in the fixed order; without slips 1 and 2) on 128x128, 512 steps, nominal
+timing: C-SAF-11 deposited 186/182/148/128 food at 16/32/64/128 agents, close to the paper's
+falling curve; one-slot queues alone gave 274/408/521/190.
 """
 
 from __future__ import annotations
@@ -88,6 +132,7 @@ STATE_NAMES = ("new", "search", "return", "orbit", "leave", "climb", "erase")
 NO_TRAIL = np.iinfo(np.int32).max
 _EPS = 1e-9
 _NEVER = np.iinfo(np.int64).max
+_REF_CORNER = 5  # the reference variant's misread cell: offset (+5, +5), its 11x11 view's corner
 
 
 class PheromoneGround:
@@ -166,8 +211,14 @@ class _Agent:
         k = self.centre
         return bool(self.obs[channel, k - radius:k + radius + 1, k - radius:k + radius + 1].any())
 
-    def nearest(self, channel: int, radius: int, rng: np.random.Generator) -> tuple[int, int] | None:
-        """Offset of the nearest cell of ``channel`` within ``radius`` that no agent stands on."""
+    def walled(self, d: int) -> bool:
+        """Whether the move ``d`` runs into a wall (outside, an obstacle, a resource or a cache)."""
+        r, c = self.cell(d)
+        return not self.inside(r, c) or self.seen(CH_BLOCKED, _DR[d], _DC[d]) > 0
+
+    def nearest(self, channel: int, radius: int, rng: np.random.Generator | None) -> tuple[int, int] | None:
+        """Offset of the nearest cell of ``channel`` within ``radius`` that no agent stands on;
+        ties at random, or clockwise from north when ``rng`` is None (the reference variant)."""
         k = self.centre
         window = (slice(k - radius, k + radius + 1),) * 2
         free = (self.obs[channel][window] > 0) & (self.obs[CH_EMPTY_AGENTS][window] == 0)
@@ -178,20 +229,30 @@ class _Agent:
             return None
         dist = np.abs(offsets).sum(axis=1)
         best = np.flatnonzero(dist == dist.min())
+        if rng is None:
+            dr, dc = min(offsets[best].tolist(), key=_clockwise)
+            return int(dr), int(dc)
         dr, dc = offsets[best[rng.integers(len(best))]]
         return int(dr), int(dc)
 
     def stay(self) -> int:
         """An action that leaves the agent where it is: a move into a wall, else a null JOIN."""
         for d in range(4):
-            r, c = self.cell(d)
-            if not self.inside(r, c) or self.seen(CH_BLOCKED, _DR[d], _DC[d]) > 0:
+            if self.walled(d):
                 return d
         return JOIN
 
 
+def _clockwise(offset) -> float:
+    """Bearing of an offset clockwise from north: N, NE, E, SE, S, SW, W, NW (the reference
+    variant's fixed tie order, which on the four neighbours is N, E, S, W)."""
+    dr, dc = offset
+    return float(np.arctan2(dc, -dr) % (2 * np.pi))
+
+
 class CSAFPolicy(Policy):
-    """C-SAF (``view=3``) or C-SAF-11 (``view=11``), see the module docstring."""
+    """C-SAF (``view=3``) or C-SAF-11 (``view=11``), see the module docstring; ``reference``
+    selects the reference variant (fixed tie order, blocked agents never yield)."""
 
     uses_world_wipeouts = True  # the harness must call :meth:`wipe` at each wipeout start
 
@@ -202,11 +263,13 @@ class CSAFPolicy(Policy):
         wipeout_steps: int = 100,
         leave_patience: int = 24,
         nest_radius: int = 2,
+        reference: bool = False,
     ):
         if view < 3 or view % 2 == 0:
             raise ValueError(f"view must be odd and >= 3, got {view}")
         self.view = view
-        self.name = "csaf" if view == 3 else f"csaf{view}"
+        self.reference = reference
+        self.name = ("csaf" if view == 3 else f"csaf{view}") + ("-ref" if reference else "")
         self.search_decay = search_decay
         self.wipeout_steps = wipeout_steps
         self.leave_patience = leave_patience
@@ -357,7 +420,7 @@ class CSAFPolicy(Policy):
         if a.join_ok:
             return JOIN
         # C-SAF-11's camera scan for resource queues is a search rule.
-        entry = a.nearest(CH_RESOURCE_ENTRY, self.radius if state == SEARCH else 1, self.rng)
+        entry = a.nearest(CH_RESOURCE_ENTRY, self.radius if state == SEARCH else 1, self._tie_rng)
         if entry is not None:
             if state == SEARCH:  # still exploring: the way to the queue joins the gradient
                 self._writes.append(("mark", a.row, a.col, self.step))
@@ -379,9 +442,17 @@ class CSAFPolicy(Policy):
         h = self.heading[i]
         if marked_at[a.row, a.col] < 0 and max(stamps) < 0:
             return self._straight(a, h)  # nothing sensed around: keep going
-        for d in ((h + 1) % 4, h, (h + 3) % 4, (h + 2) % 4):  # right, ahead, left, back
-            if a.valid[d] and stamps[d] < 0:
-                return d
+        if self.reference:
+            for d in ((h + 1) % 4, h, (h + 3) % 4):  # right, ahead, left
+                if a.valid[d] and stamps[d] < 0:
+                    return d
+            for d in range(4):  # the reference's fallback: N, E, S, W, other agents unseen
+                if not a.walled(d) and stamps[d] < 0:
+                    return d  # taken by an agent: the move fails, and is tried again
+        else:
+            for d in ((h + 1) % 4, h, (h + 3) % 4, (h + 2) % 4):  # right, ahead, left, back
+                if a.valid[d] and stamps[d] < 0:
+                    return d
         own = marked_at[a.row, a.col]
         newer = [d for d in range(4) if a.valid[d] and d != (h + 2) % 4 and stamps[d] > own]
         if newer:
@@ -389,6 +460,11 @@ class CSAFPolicy(Policy):
         return self._straight(a, h)
 
     def _straight(self, a: _Agent, h: int) -> int:
+        if self.reference:  # an agent ahead: wait for it; a wall: turn, N, E, S, W first
+            for d in (h, min((h + 1) % 4, (h + 3) % 4), max((h + 1) % 4, (h + 3) % 4), (h + 2) % 4):
+                if not a.walled(d):
+                    return d
+            return a.stay()
         if a.valid[h]:
             return h
         turns = [d for d in ((h + 1) % 4, (h + 3) % 4) if a.valid[d]]
@@ -410,7 +486,7 @@ class CSAFPolicy(Policy):
                 continue
             keys = ground.layers_at(r, c)
             if keys:
-                self.trail_key[a.i] = keys[self.rng.integers(len(keys))]
+                self.trail_key[a.i] = min(keys) if self.reference else keys[self.rng.integers(len(keys))]
                 self.state[a.i] = CLIMB
                 return True
         return False
@@ -433,10 +509,12 @@ class CSAFPolicy(Policy):
             self.state[i] = SEARCH
             return self._search(a)
         if lower:  # the way up is taken by another agent
-            return self._sidestep(a)
+            return self._retry(a, lower, hops) if self.reference else self._sidestep(a)
         if own == NO_TRAIL:
             diagonal = [(dr, dc) for dr in (-1, 1) for dc in (-1, 1)
                         if a.inside(a.row + dr, a.col + dc) and layer[a.row + dr, a.col + dc] != NO_TRAIL]
+            if diagonal and self.reference:
+                return self._toward(a, *min(diagonal, key=_clockwise))
             if diagonal:
                 return self._toward(a, *diagonal[self.rng.integers(len(diagonal))])
             self.state[i] = SEARCH  # lost the trail
@@ -459,6 +537,8 @@ class CSAFPolicy(Policy):
             self.state[i] = SEARCH
             return self._search(a)
         d = self._pick(down, [hops[d] for d in down])
+        if self.reference and not a.walled(d):
+            return d  # taken by another agent: wait for it
         return d if a.valid[d] else a.stay()
 
     # ------------------------------------------------------------------ loaded
@@ -471,7 +551,7 @@ class CSAFPolicy(Policy):
             self._writes.append(("colour", int(self.trail_key[i]), a.row, a.col, int(self.hops[i])))
         if a.join_ok:
             return JOIN
-        entry = a.nearest(CH_CACHE_ENTRY, self.radius, self.rng)
+        entry = a.nearest(CH_CACHE_ENTRY, self.radius, self._tie_rng)
         if entry is not None:
             return self._toward(a, *entry)
         if self.state[i] == RETURN:
@@ -496,7 +576,7 @@ class CSAFPolicy(Policy):
         if movable:
             return self._pick(movable, [stamps[d] for d in movable])
         if lower:
-            return self._sidestep(a)
+            return self._retry(a, lower, stamps) if self.reference else self._sidestep(a)
         return self._home(a)
 
     def _home(self, a: _Agent) -> int:
@@ -535,10 +615,19 @@ class CSAFPolicy(Policy):
             if a.valid[d]:
                 self.went_out[i] = d == outward
                 return d
+        if self.reference:  # boxed in: wait for the first of those moves to clear
+            return self._retry(a, order)
         return self._sidestep(a)  # boxed in (perhaps on a queue's spot 0): make room
 
     def _leave(self, a: _Agent) -> int:
         i = a.i
+        if self.reference and self.counter[i] == 0 and a.centre >= _REF_CORNER:
+            # The reference checks the cell behind a just-unloaded agent with the heading of
+            # its JOIN (none), which reads the view's corner 5 south, 5 east: it waits while
+            # an agent stands there.
+            k = a.centre + _REF_CORNER
+            if a.obs[CH_EMPTY_AGENTS, k, k] > 0 or a.obs[CH_CARRYING_AGENTS, k, k] > 0:
+                return a.stay()
         if self._follow_trail(a):
             return self._climb(a)
         self.counter[i] += 1
@@ -557,11 +646,15 @@ class CSAFPolicy(Policy):
             options = [vertical] + ([horizontal] if dc else [])
         elif abs(dc) > abs(dr):
             options = [horizontal] + ([vertical] if dr else [])
+        elif dr and self.reference:
+            options = sorted((vertical, horizontal))
         elif dr:
             options = [vertical, horizontal] if self.rng.random() < 0.5 else [horizontal, vertical]
         for d in options:
             if a.valid[d]:
                 return d
+        if self.reference:
+            return self._retry(a, options)
         return self._sidestep(a)
 
     def _sidestep(self, a: _Agent) -> int:
@@ -572,10 +665,31 @@ class CSAFPolicy(Policy):
         return moves[self.rng.integers(len(moves))]
 
     def _pick(self, options: list[int], costs: list[int]) -> int:
-        """The cheapest option, ties at random."""
+        """The cheapest option, ties at random (the reference variant: N, E, S, W first)."""
         best = min(costs)
         ties = [d for d, cost in zip(options, costs) if cost == best]
+        if self.reference:
+            return min(ties)
         return ties[self.rng.integers(len(ties))] if len(ties) > 1 else ties[0]
+
+    def _retry(self, a: _Agent, wanted: list[int], costs: list[int] | None = None) -> int:
+        """The reference variant's answer to a blocked way: the first wanted move (in the
+        given order, or the cheapest by ``costs[d]``, then N, E, S, W) that is not into a
+        wall, although another agent stands there: the move fails and the agent waits, its
+        heading kept, until the cell clears. Only when every wanted move is into a wall: the
+        first free move in N, E, S, W order, else stay."""
+        if costs is not None:
+            wanted = sorted(wanted, key=lambda d: (costs[d], d))
+        for d in wanted:
+            if not a.walled(d):
+                return d
+        moves = [d for d in range(4) if a.valid[d]]
+        return moves[0] if moves else a.stay()
+
+    @property
+    def _tie_rng(self) -> np.random.Generator | None:
+        """The generator for random ties, None for the reference variant's fixed order."""
+        return None if self.reference else self.rng
 
 
 class CSAF11Policy(CSAFPolicy):

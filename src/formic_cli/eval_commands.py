@@ -24,7 +24,7 @@ def _split(text: str, kind, option: str) -> list:
 
 @click.command("eval")
 @click.option("--algorithms", default=DEFAULT_ALGORITHMS, show_default=True,
-              help="Comma list of formic, planner, csaf, csaf11, cardinality, random.")
+              help="Comma list of formic, planner, csaf, csaf11, cardinality, random, and the reference variants csaf-ref, csaf11-ref.")
 @click.option("--sizes", help=f"World sides, comma list [default: {DEFAULT_SIZES}].")
 @click.option("--teams", help=f"Team sizes, comma list [default: {DEFAULT_TEAMS}].")
 @click.option("--obstacles", help=f"Obstacle densities, comma list [default: {DEFAULT_OBSTACLES}].")

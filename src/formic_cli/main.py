@@ -39,6 +39,7 @@ def emit_json(obj: dict) -> None:
 def sim(policy, model, greedy, scenario_file, out, gif, as_json, **world_kw) -> None:
     """One episode in one process, no ROS (the same result as `formic run`)."""
     from formic_agent.episode import run_episode
+    from formic_agent.registry import apply_world_overrides, parse_team, world_overrides
     from formic_world import Scenario, generate_scenario
     from formic_world.render import render_frame, render_frames_to_file, save_png
 
@@ -49,6 +50,12 @@ def sim(policy, model, greedy, scenario_file, out, gif, as_json, **world_kw) -> 
     else:
         config, seed = world_config_from(world_kw)
         scenario = generate_scenario(config, seed)
+    try:  # the world the team needs (one-slot queues for csaf-ref), over the scenario's own
+        names = [name for name, _ in parse_team(policy, scenario.config.n_agents).groups]
+        overrides = world_overrides(names)
+        scenario = apply_world_overrides(scenario, names)
+    except ValueError as exc:
+        raise click.ClickException(str(exc)) from exc
     frames = []
     on_step = (lambda w: frames.append(render_frame(w, scale=3))) if gif else None
     try:
@@ -64,6 +71,8 @@ def sim(policy, model, greedy, scenario_file, out, gif, as_json, **world_kw) -> 
         files["animation"] = str(out_dir / "episode.gif")
         render_frames_to_file(frames, files["animation"])
     summary = episode_summary(scenario, policy, result)
+    if overrides:
+        summary["world_overrides"] = overrides
     summary["files"] = files
     if as_json:
         emit_json(summary)
@@ -71,6 +80,8 @@ def sim(policy, model, greedy, scenario_file, out, gif, as_json, **world_kw) -> 
         from .summary import print_episode_summary
 
         print_episode_summary(summary)
+        if overrides:
+            click.echo("world settings of this team: " + ", ".join(f"{k}={v!r}" for k, v in overrides.items()))
 
 
 # ----------------------------------------------------------------------------- scenarios

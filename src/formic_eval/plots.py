@@ -9,7 +9,8 @@ import numpy as np
 
 from .paper import ALGORITHM_TITLES
 
-COLOURS = {"formic": "C3", "planner": "C0", "csaf": "C1", "csaf11": "C2", "cardinality": "C4", "random": "C7"}
+COLOURS = {"formic": "C3", "planner": "C0", "csaf": "C1", "csaf11": "C2", "cardinality": "C4", "random": "C7",
+           "csaf-ref": "C5", "csaf11-ref": "C6"}
 
 
 def _pyplot():

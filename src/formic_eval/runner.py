@@ -80,7 +80,7 @@ _LEARNED_CACHE: dict[tuple, object] = {}
 def run_task(task: Task) -> dict:
     """Run one episode and return its log record (runs in a worker process)."""
     from formic_agent.episode import run_episode
-    from formic_agent.registry import make_policy
+    from formic_agent.registry import apply_world_overrides, make_policy, world_overrides
     from formic_world import Scenario
 
     stored = task.scenario
@@ -89,6 +89,8 @@ def run_task(task: Task) -> dict:
         scenario = Scenario.load(stored.path)
         if task.no_pheromones:
             scenario = dataclasses.replace(scenario, config=scenario.config.replace(pheromones_visible=False))
+        # The stored layout, in the world this algorithm runs in (one-slot queues for csaf-ref).
+        scenario = apply_world_overrides(scenario, [task.algorithm])
         if task.algorithm == "formic":
             # Loading a checkpoint is the costly part; reset() clears the LSTM state per episode.
             cache_key = (task.model, task.model_digest, task.greedy)
@@ -109,7 +111,7 @@ def run_task(task: Task) -> dict:
             f"{task.algorithm} on {stored.path.name}: {type(exc).__name__}: {exc} "
             f"(at {frame.filename}:{frame.lineno} in {frame.name})"
         ) from exc
-    return {
+    record = {
         "key": task.key,
         "algorithm": task.algorithm,
         "variant": task.variant,
@@ -128,6 +130,10 @@ def run_task(task: Task) -> dict:
         "wall_s": round(wall, 4),
         "food_curve": [round(float(v), 4) for v in result.food_curve],
     }
+    overrides = world_overrides([task.algorithm])
+    if overrides:
+        record["world_overrides"] = overrides
+    return record
 
 
 def _init_worker(threads: int) -> None:

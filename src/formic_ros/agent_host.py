@@ -36,7 +36,7 @@ from rclpy.parameter import Parameter
 from rclpy.type_description_service import START_TYPE_DESCRIPTION_SERVICE_PARAM
 
 from formic_agent.policy import AgentBatch, CentralPolicy, Policy
-from formic_agent.registry import POLICY_NAMES, make_policy
+from formic_agent.registry import POLICY_NAMES, make_policy, world_overrides
 from formic_world import Scenario
 
 from . import convert, qos
@@ -140,6 +140,7 @@ class AgentHost:
         self.ids = np.array(sorted(agent_ids), dtype=np.int64)
         self.groups: list[tuple[Policy, np.ndarray]] = []
         groups = policy_groups(spec, list(self.ids))
+        self.world_needs = world_overrides([policy_name for policy_name, _ in groups])  # csaf-ref: one-slot queues
         if any(policy_name == "formic" for policy_name, _ in groups):
             import torch
 
@@ -204,6 +205,10 @@ class AgentHost:
             self.log.error(f"agents {outside.tolist()} are not in this team of {self.n_agents}: "
                            "they get no observations")
         self.expected = int((self.ids < self.n_agents).sum())
+        wrong = {k: v for k, v in self.world_needs.items() if getattr(scenario.config, k) != v}
+        if wrong:
+            self.log.error(f"this host's policies need a world with {wrong}, but the world serves "
+                           f"{ {k: getattr(scenario.config, k) for k in wrong} }: `formic run` sets them")
         self._start_episode()
         self.log.info(f"scenario seed {self.seed}: driving agents {_describe(self.ids)} ({self.transport})")
 

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from formic_agent.registry import DEFAULT_MODEL, TeamAssignment, parse_team
+from formic_agent.registry import DEFAULT_MODEL, TeamAssignment, apply_world_overrides, parse_team
 from formic_world import Scenario
 
 from . import qos
@@ -38,7 +38,8 @@ from .env import check_domain_id, ros_environment
 if TYPE_CHECKING:
     from formic_trainer.train import TrainConfig
 
-SHARED_MARK_POLICIES = ("csaf", "csaf11", "cardinality")  # one team's marks live in one process
+# One team's marks live in one process.
+SHARED_MARK_POLICIES = ("csaf", "csaf11", "csaf-ref", "csaf11-ref", "cardinality")
 STOP_GRACE_S = (5.0, 3.0)  # after SIGINT, after SIGTERM; then SIGKILL
 RECORDER_GRACE_S = (20.0, 5.0)  # the recorder closes its file on SIGINT
 DEFAULT_MAX_LAG = 4  # the trainer node's (formic_ros.trainer_node imports torch)
@@ -212,6 +213,9 @@ def launch(opts: RunOptions) -> dict:
     """Play one episode across processes; returns the world's summary (plus launch details).
     Raises RuntimeError when the world fails; children are stopped and reaped in any case."""
     team = parse_team(opts.policy, opts.scenario.config.n_agents, external=opts.external)
+    # The world the team needs (one-slot queues for csaf-ref): the world node serves, and the
+    # recorder records, this scenario, so a replay re-simulates the same world.
+    scenario = apply_world_overrides(opts.scenario, [name for name, _ in team.groups])
     if "planner" in dict(team.groups) and opts.external:
         raise ValueError("the planner commands every agent; it cannot leave some to --external")
     check_domain_id(opts.domain_id)
@@ -226,7 +230,7 @@ def launch(opts: RunOptions) -> dict:
             return child_output(opts.log_dir, name, files)
 
         scenario_file = Path(tmp) / "scenario.json"
-        opts.scenario.save(scenario_file)
+        scenario.save(scenario_file)
         world_out = open(Path(tmp) / "world.json", "w+b")
         files.append(world_out)
         try:
