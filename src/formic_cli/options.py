@@ -10,8 +10,8 @@ from formic_world import WorldConfig
 
 
 def world_options(func):
-    """Add --agents --size --steps --seed --obstacles --resources --wipeouts --variant --view
-    --no-pheromones --timing."""
+    """Add --agents --size --steps --seed --obstacles --resources --wipeouts --variant
+    --view-size --no-pheromones --timing."""
     options = [
         click.option("--agents", default=32, show_default=True, help="Team size."),
         click.option("--size", default=128, show_default=True, help="World side (square)."),
@@ -23,7 +23,7 @@ def world_options(func):
         click.option("--wipeouts", default=0, show_default=True, help="Pheromone wipeouts of 100 steps."),
         click.option("--variant", type=click.Choice(["standard", "flat", "noisy", "random"]),
                      default="standard", show_default=True, help="Pheromone variant."),
-        click.option("--view", default=11, show_default=True, help="Observation window (5, 11, 21)."),
+        click.option("--view-size", default=11, show_default=True, help="Observation window (5, 11, 21)."),
         click.option("--no-pheromones", is_flag=True, help="Agents see an empty pheromone channel."),
         click.option("--timing", type=click.Choice(["reference", "nominal"]), default="reference",
                      show_default=True, help="Service timing (SPEC §1): the reference code's (a load "
@@ -40,7 +40,7 @@ def world_options(func):
 
 
 WORLD_OPTION_NAMES = ("agents", "size", "steps", "seed", "obstacles", "resources", "wipeouts",
-                      "variant", "view", "no_pheromones", "timing")
+                      "variant", "view_size", "no_pheromones", "timing")
 
 
 def world_config_from(kwargs: dict) -> tuple[WorldConfig, int]:
@@ -51,7 +51,7 @@ def world_config_from(kwargs: dict) -> tuple[WorldConfig, int]:
             height=values["size"], width=values["size"], n_agents=values["agents"],
             episode_steps=values["steps"], obstacle_density=values["obstacles"],
             capacity=values["resources"], wipeouts=values["wipeouts"],
-            pheromone_variant=values["variant"], view_size=values["view"],
+            pheromone_variant=values["variant"], view_size=values["view_size"],
             pheromones_visible=not values["no_pheromones"], timing=values["timing"],
         )
     except ValueError as exc:
