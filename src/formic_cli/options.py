@@ -6,6 +6,7 @@ import functools
 
 import click
 
+from formic_view import DEFAULT_HOST, DEFAULT_PORT
 from formic_world import WorldConfig
 
 
@@ -57,3 +58,41 @@ def world_config_from(kwargs: dict) -> tuple[WorldConfig, int]:
     except ValueError as exc:
         raise click.BadParameter(str(exc)) from exc
     return config, values["seed"]
+
+
+def view_options(wait: bool = True):
+    """Add --view and --view-port (and --view-wait): the live view (formic_view) of a run."""
+
+    def decorate(func):
+        options = [
+            click.option("--view", "live_view", is_flag=True,
+                         help="Serve a live view of the run while it goes (Foxglove WebSocket; open it in "
+                              "Foxglove or Lichtblick)."),
+            click.option("--view-port", default=DEFAULT_PORT, show_default=True,
+                         help=f"Port of the live view (on {DEFAULT_HOST}; 0: any free port)."),
+        ]
+        if wait:
+            options.append(click.option("--view-wait", is_flag=True,
+                                        help="With --view: start stepping once a viewer has subscribed."))
+        for option in reversed(options):
+            func = option(func)
+        return func
+
+    return decorate
+
+
+def open_live_view(port: int, wait: bool = False):
+    """Start the live view and print its address (on stderr: stdout may carry --json);
+    with ``wait``, return once a viewer has subscribed."""
+    from formic_view import LiveView, announcement
+
+    try:
+        view = LiveView(port=port)
+    except OSError as exc:
+        raise click.ClickException(str(exc)) from exc
+    click.echo(announcement(view.url), err=True)
+    if wait:
+        click.echo("live view: waiting for a viewer to subscribe (Ctrl-C to give up)", err=True)
+        while not view.wait_for_viewer(0.2):
+            pass
+    return view
