@@ -165,8 +165,11 @@ class LiveView:
         self.close()
 
 
+_IDENTITY = Quaternion(w=1.0)
+
+
 def _pose(x: float = 0.0, y: float = 0.0, z: float = 0.0) -> Pose:
-    return Pose(position=Vector3(x=x, y=y, z=z), orientation=Quaternion(w=1.0))
+    return Pose(position=Vector3(x=x, y=y, z=z), orientation=_IDENTITY)
 
 
 def world_grid(world: World, stamp: Timestamp) -> Grid:
@@ -176,29 +179,38 @@ def world_grid(world: World, stamp: Timestamp) -> Grid:
 
     height, width = world.grid.shape
     cells = np.empty((height, width), dtype=CELL)
-    colours = np.rint(cell_colours(world)).astype(np.uint8)
-    cells["red"], cells["green"], cells["blue"] = colours[..., 0], colours[..., 1], colours[..., 2]
+    north_up = slice(None, None, -1)  # grid rows go north: the world's last row first
+    colours = cell_colours(world)[north_up]
+    for channel, name in enumerate(("red", "green", "blue")):
+        cells[name] = np.rint(colours[..., channel])
     cells["alpha"] = 255
-    cells["pheromone"] = world.visible_pheromone()
-    cells["cell"] = world.grid
+    cells["pheromone"] = world.visible_pheromone()[north_up]
+    cells["cell"] = world.grid[north_up]
     return Grid(timestamp=stamp, frame_id=FRAME, pose=_pose(), column_count=width,
                 cell_size=Vector2(x=1.0, y=1.0), row_stride=width * CELL.itemsize, cell_stride=CELL.itemsize,
-                fields=GRID_FIELDS, data=cells[::-1].tobytes())  # grid rows go north: the world's last row first
+                fields=GRID_FIELDS, data=cells.tobytes())
+
+
+def _colour(load: float) -> Color:
+    return Color(r=EMPTY[0] + (LOADED[0] - EMPTY[0]) * load, g=EMPTY[1] + (LOADED[1] - EMPTY[1]) * load,
+                 b=EMPTY[2] + (LOADED[2] - EMPTY[2]) * load, a=1.0)
+
+
+_SIZE = Vector3(x=AGENT_SIZE, y=AGENT_SIZE, z=AGENT_SIZE)
 
 
 def agent_scene(world: World, stamp: Timestamp) -> SceneUpdate:
     """One entity per agent (id ``agent_K``): a sphere while free, a cube while queued,
     coloured from blue (empty) to orange (full), with its load and queue as metadata."""
     height = world.grid.shape[0]
-    loads, queues = world.loads, world.queue_of
-    size = Vector3(x=AGENT_SIZE, y=AGENT_SIZE, z=AGENT_SIZE)
+    colours: dict[float, Color] = {}  # loads take a few values (tenths): one colour object each
     entities = []
-    for a, ((row, col), load, queue) in enumerate(zip(world.pos.tolist(), loads.tolist(), queues.tolist())):
-        colour = Color(r=EMPTY[0] + (LOADED[0] - EMPTY[0]) * load, g=EMPTY[1] + (LOADED[1] - EMPTY[1]) * load,
-                       b=EMPTY[2] + (LOADED[2] - EMPTY[2]) * load, a=1.0)
+    for a, ((row, col), load, queue) in enumerate(zip(world.pos.tolist(), world.loads.tolist(),
+                                                      world.queue_of.tolist())):
+        colour = colours.get(load) or colours.setdefault(load, _colour(load))
         pose = _pose(col + 0.5, height - 1 - row + 0.5, AGENT_SIZE / 2)
-        shape = {"cubes": [CubePrimitive(pose=pose, size=size, color=colour)]} if queue >= 0 else \
-            {"spheres": [SpherePrimitive(pose=pose, size=size, color=colour)]}
+        shape = ({"cubes": [CubePrimitive(pose=pose, size=_SIZE, color=colour)]} if queue >= 0 else
+                 {"spheres": [SpherePrimitive(pose=pose, size=_SIZE, color=colour)]})
         entities.append(SceneEntity(
             timestamp=stamp, frame_id=FRAME, id=f"agent_{a}", frame_locked=True,
             metadata=[KeyValuePair(key="load", value=f"{load:g}"), KeyValuePair(key="queue", value=str(queue))],
