@@ -27,10 +27,10 @@ websockets_sync = pytest.importorskip("websockets.sync.client")
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory  # noqa: E402
 
 from formic_view import announcement  # noqa: E402
-from formic_view.live import AGENTS_TOPIC, CELL, SCORE_TOPIC, WORLD_TOPIC, LiveView  # noqa: E402
+from formic_view.live import AGENTS_TOPIC, CELL, SCORE_TOPIC, STATE_TOPIC, WORLD_TOPIC, LiveView  # noqa: E402
 from formic_world import WorldConfig, World, generate_scenario  # noqa: E402
 
-TOPICS = (WORLD_TOPIC, AGENTS_TOPIC, SCORE_TOPIC)
+TOPICS = (WORLD_TOPIC, AGENTS_TOPIC, SCORE_TOPIC, STATE_TOPIC)  # the state goes out last of a step
 SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]  # what Foxglove offers; the server picks
 MESSAGE_DATA = 1  # binary opcode of a server's messageData frame
 ROOT = Path(__file__).resolve().parents[1]
@@ -177,7 +177,8 @@ def test_live_view_streams_world_agents_and_score_decoded_with_advertised_schema
                 world.step(rng.integers(0, 5, n))
                 expected[world.t] = dict(score=world.score, pos=world.pos.copy(), loads=world.loads.copy(),
                                          queued=world.queued.copy(), pheromone=world.visible_pheromone().copy(),
-                                         grid=world.grid.copy())
+                                         grid=world.grid.copy(),
+                                         food_left=world.resource_remaining.sum() / world.load_full)
                 assert view.publish(world, final=world.done)
             got = {topic: {} for topic in TOPICS}
             for topic, stamp, message in client.messages(
@@ -199,12 +200,14 @@ def test_live_view_streams_world_agents_and_score_decoded_with_advertised_schema
         assert [len(e.cubes) == 1 for e in entities] == want["queued"].tolist()  # queued: cube, free: sphere
         assert [float(e.metadata[0].value) for e in entities] == pytest.approx(want["loads"].tolist())
         assert entities[0].timestamp.seconds * 10 + round(entities[0].timestamp.nanos / 1e8) == step
-        score = got[SCORE_TOPIC][step]
-        assert score["data"] == want["score"] and score["step"] == step
-        assert score["food_carried"] == pytest.approx(want["loads"].sum())
-        assert score["queued"] == want["queued"].sum() and score["agents"] == n
-        assert score["sim_time"] == pytest.approx(step * 0.1)
-    assert any(s["data"] > 0 or s["food_carried"] > 0 for s in got[SCORE_TOPIC].values())
+        assert got[SCORE_TOPIC][step] == {"data": want["score"]}
+        state = got[STATE_TOPIC][step]
+        assert state["score"] == want["score"] and state["step"] == step
+        assert state["food_carried"] == pytest.approx(want["loads"].sum())
+        assert state["carrying"] == (want["loads"] > 0).sum() and state["queued"] == want["queued"].sum()
+        assert state["agents"] == n and state["sim_time"] == pytest.approx(step * 0.1)
+        assert state["food_left"] == pytest.approx(want["food_left"])
+    assert any(s["score"] > 0 or s["food_carried"] > 0 for s in got[STATE_TOPIC].values())
 
 
 def test_live_view_is_rate_limited_builds_nothing_unwatched_and_always_sends_the_final_step():
@@ -225,7 +228,7 @@ def test_live_view_is_rate_limited_builds_nothing_unwatched_and_always_sends_the
                 time.sleep(0.002)
             elapsed = time.monotonic() - started
             steps = [round(stamp / 1e8) for topic, stamp, _ in client.messages(
-                until=lambda topic, message: topic == SCORE_TOPIC and message["step"] == 400) if topic == SCORE_TOPIC]
+                until=lambda topic, message: topic == STATE_TOPIC and message["step"] == 400) if topic == STATE_TOPIC]
     assert sent[-1] == 400 and steps == sent
     assert 2 <= len(sent) <= 5 * elapsed + 3  # about 5 a second, not 400
 
@@ -271,22 +274,24 @@ def _watch(process: subprocess.Popen, stderr: Path, port: int, last_step: int) -
         client.await_channels(TOPICS, timeout_s=60)
         client.subscribe_all()
         for topic, stamp, message in client.messages(
-                until=lambda topic, message: topic == SCORE_TOPIC and message["step"] == last_step, timeout_s=120):
+                until=lambda topic, message: topic == STATE_TOPIC and message["step"] == last_step, timeout_s=120):
             got[topic][round(stamp / 1e8)] = message
     return got
 
 
 def _check_stream(got: dict, n_agents: int, size: int, summary: dict) -> None:
-    steps = sorted(got[SCORE_TOPIC])
+    steps = sorted(got[STATE_TOPIC])
     assert len(steps) >= 3 and steps[-1] == summary["steps"]
     for step in steps:
-        assert got[SCORE_TOPIC][step]["step"] == step
+        assert got[STATE_TOPIC][step]["step"] == step
+        if step in got[SCORE_TOPIC]:  # (a channel's subscription may start a step later than another's)
+            assert got[SCORE_TOPIC][step]["data"] == got[STATE_TOPIC][step]["score"]
         if step in got[AGENTS_TOPIC]:
             assert len(got[AGENTS_TOPIC][step].entities) == n_agents
         if step in got[WORLD_TOPIC]:
             assert grid_cells(got[WORLD_TOPIC][step]).shape == (size, size)
     assert got[SCORE_TOPIC][steps[-1]]["data"] == summary["food"]
-    assert len(got[AGENTS_TOPIC]) >= 3 and len(got[WORLD_TOPIC]) >= 3
+    assert min(len(got[topic]) for topic in TOPICS) >= 3
 
 
 def test_sim_view_cli_streams_the_episode_to_a_viewer(tmp_path):

@@ -1,8 +1,9 @@
 """A live view of a run: a Foxglove WebSocket server fed by the :class:`formic_world.World`.
 
 Foxglove or Lichtblick connect to it directly (``Open connection -> Foxglove WebSocket``), so
-watching needs neither ROS nor a bridge. One :class:`LiveView` owns the server and three
-channels, named like the recorded topics where the same panel can show both:
+watching needs neither ROS nor a bridge. One :class:`LiveView` owns the server and four
+channels, named like the recorded topics where the same panel can show both (the JSON ones
+share the recorded fields ``/formic/score.data``, ``/formic/state.step`` and ``.score``):
 
 ==========================  ==========================  =====================================
 live channel                schema                      recorded counterpart
@@ -10,6 +11,7 @@ live channel                schema                      recorded counterpart
 ``/formic/world``           ``foxglove.Grid``           ``/formic/map`` (``nav_msgs/OccupancyGrid``)
 ``/formic/agent_markers``   ``foxglove.SceneUpdate``    ``/formic/agent_markers`` (``MarkerArray``)
 ``/formic/score``           JSON ``formic.Score``       ``/formic/score`` (``std_msgs/Float64``)
+``/formic/state``           JSON ``formic.State``       ``/formic/state`` (``WorldState``)
 ==========================  ==========================  =====================================
 
 Frames: ``map``, 1 m a cell, x east along the columns, y north (row 0 of the world is the top),
@@ -59,6 +61,7 @@ FRAME = "map"
 WORLD_TOPIC = "/formic/world"
 AGENTS_TOPIC = "/formic/agent_markers"
 SCORE_TOPIC = "/formic/score"
+STATE_TOPIC = "/formic/state"
 
 # One grid cell: the rendered colour (as `formic render` draws it), then the raw layers.
 CELL = np.dtype([("red", "u1"), ("green", "u1"), ("blue", "u1"), ("alpha", "u1"),
@@ -73,15 +76,19 @@ AGENT_SIZE = 0.8
 
 SCORE_SCHEMA = foxglove.Schema(name="formic.Score", encoding="jsonschema", data=json.dumps({
     "type": "object",
+    "properties": {"data": {"type": "number", "description": "food delivered to the nest, as std_msgs/Float64"}},
+}).encode())
+STATE_SCHEMA = foxglove.Schema(name="formic.State", encoding="jsonschema", data=json.dumps({
+    "type": "object",
     "properties": {
-        "data": {"type": "number", "description": "food delivered to the nest (the score), as std_msgs/Float64"},
-        "step": {"type": "integer", "description": "world step"},
+        "step": {"type": "integer", "description": "world step, as WorldState.step"},
+        "score": {"type": "number", "description": "food delivered to the nest, as WorldState.score"},
         "sim_time": {"type": "number", "description": "simulated seconds (step x dt)"},
         "food_carried": {"type": "number", "description": "food the agents carry"},
         "food_left": {"type": ["number", "null"], "description": "food left in finite resources (null: infinite)"},
         "carrying": {"type": "integer", "description": "agents carrying food"},
         "queued": {"type": "integer", "description": "agents waiting in a queue"},
-        "agents": {"type": "integer"},
+        "agents": {"type": "integer", "description": "team size"},
     },
 }).encode())
 
@@ -121,6 +128,8 @@ class LiveView:
         self.agents_channel = SceneUpdateChannel(AGENTS_TOPIC, context=context)
         self.score_channel = foxglove.Channel(SCORE_TOPIC, schema=SCORE_SCHEMA, message_encoding="json",
                                               context=context)
+        self.state_channel = foxglove.Channel(STATE_TOPIC, schema=STATE_SCHEMA, message_encoding="json",
+                                              context=context)
 
     @property
     def port(self) -> int:
@@ -150,7 +159,10 @@ class LiveView:
                 channel.log(build(world, stamp), log_time=nanos)
                 sent = True
         if self.score_channel.has_sinks():
-            self.score_channel.log(score_message(world, self.dt), log_time=nanos)
+            self.score_channel.log({"data": world.score}, log_time=nanos)
+            sent = True
+        if self.state_channel.has_sinks():
+            self.state_channel.log(state_message(world, self.dt), log_time=nanos)
             sent = True
         self.published += sent
         return sent
@@ -218,10 +230,10 @@ def agent_scene(world: World, stamp: Timestamp) -> SceneUpdate:
     return SceneUpdate(entities=entities)
 
 
-def score_message(world: World, dt: float) -> dict:
+def state_message(world: World, dt: float) -> dict:
     finite = world.resource_capacity >= 0
     left = float(world.resource_remaining[finite].sum() / world.load_full) if finite.any() else None
-    return {"data": world.score, "step": int(world.t), "sim_time": world.t * dt,
+    return {"step": int(world.t), "score": world.score, "sim_time": world.t * dt,
             "food_carried": float(world.loads.sum()), "food_left": left,
             "carrying": int(world.carrying.sum()), "queued": int(world.queued.sum()),
             "agents": int(world.config.n_agents)}
