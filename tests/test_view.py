@@ -339,3 +339,15 @@ def test_run_view_streams_a_distributed_run_and_replay_view_shows_its_recording(
     _check_stream(got, 16, 32, summary)
     for step, score in got[SCORE_TOPIC].items():  # step 0: the start, before the first step
         assert score["data"] == (summary["food_curve"][step - 1] if step else 0.0)
+
+
+def test_shipped_layout_shows_the_live_channels_beside_the_recorded_topics():
+    layout = json.loads((ROOT / "foxglove" / "formic_layout.json").read_text())
+    panels = layout["configById"]
+    three = next(v for k, v in panels.items() if k.startswith("3D!"))["topics"]
+    assert three[WORLD_TOPIC] == {"visible": True, "colorMode": "rgba-fields", "frameLocked": True}
+    assert three["/formic/map"]["visible"] and three[AGENTS_TOPIC]["visible"]  # recorded map; markers: both
+    plot = next(v for k, v in panels.items() if k.startswith("Plot!"))
+    assert f"{SCORE_TOPIC}.data" in [p["value"] for p in plot["paths"]]  # Float64.data, recorded and live
+    assert f"{STATE_TOPIC}.step" in [v.get("topicPath") for v in panels.values()]  # WorldState.step and live
+    assert set(CELL.names) >= {"red", "green", "blue", "alpha"}  # what rgba-fields reads
