@@ -10,7 +10,7 @@ from pathlib import Path
 
 import click
 
-from .options import world_options, world_config_from
+from .options import open_live_view, view_options, world_config_from, world_options
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
@@ -35,8 +35,9 @@ def emit_json(obj: dict) -> None:
 @click.option("--out", type=click.Path(file_okay=False), default="out/sim", show_default=True,
               help="Where the final picture (and --gif) go.")
 @click.option("--gif", is_flag=True, help="Also write an animation of the episode.")
+@view_options()
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
-def sim(policy, model, greedy, scenario_file, out, gif, as_json, **world_kw) -> None:
+def sim(policy, model, greedy, scenario_file, out, gif, live_view, view_port, view_wait, as_json, **world_kw) -> None:
     """One episode in one process, no ROS (the same result as `formic run`)."""
     from formic_agent.episode import run_episode
     from formic_agent.registry import apply_world_overrides, parse_team, world_overrides
@@ -57,11 +58,22 @@ def sim(policy, model, greedy, scenario_file, out, gif, as_json, **world_kw) -> 
     except ValueError as exc:
         raise click.ClickException(str(exc)) from exc
     frames = []
-    on_step = (lambda w: frames.append(render_frame(w, scale=3))) if gif else None
+    view = open_live_view(view_port, wait=view_wait) if live_view else None
+
+    def on_step(w) -> None:
+        if gif:
+            frames.append(render_frame(w, scale=3))
+        if view is not None:
+            view.publish(w, final=w.done)
+
     try:
-        result = run_episode(scenario, policy, model=model, greedy=greedy, on_step=on_step)
+        result = run_episode(scenario, policy, model=model, greedy=greedy,
+                             on_step=on_step if gif or view is not None else None)
     except (FileNotFoundError, ValueError) as exc:
         raise click.ClickException(str(exc)) from exc
+    finally:
+        if view is not None:
+            view.close()
     out_dir = Path(out)
     out_dir.mkdir(parents=True, exist_ok=True)
     picture = out_dir / "final.png"

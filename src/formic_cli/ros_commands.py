@@ -11,7 +11,7 @@ import sys
 
 import click
 
-from .options import world_config_from, world_options
+from .options import view_options, world_config_from, world_options
 
 NAMESPACE_HELP = "ROS namespace of the ForMIC topics and nodes."
 DOMAIN_HELP = "ROS_DOMAIN_ID for this run (default: the environment's, else 0)."
@@ -84,9 +84,11 @@ def _sigterm_as_interrupt() -> None:
 @click.option("--viewer-every", default=10, show_default=True, help="Publish map and markers every k steps (0: never).")
 @click.option("--log-dir", type=click.Path(file_okay=False), help="Write each process's log here instead of stderr.")
 @click.option("--timeout", type=float, help="Give up after this many seconds.")
+@view_options(wait=False)
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
 def run(policy, model, greedy, scenario_file, hosts, transport, external, record, namespace, domain_id,
-        deadline_ms, startup_timeout, rate, viewer_every, log_dir, timeout, as_json, **world_kw) -> None:
+        deadline_ms, startup_timeout, rate, viewer_every, log_dir, timeout, live_view, view_port, as_json,
+        **world_kw) -> None:
     """The main job: world, agent hosts (or the planner) and recorder as separate ROS processes."""
     from formic_ros.launcher import RunOptions, launch
 
@@ -97,7 +99,12 @@ def run(policy, model, greedy, scenario_file, hosts, transport, external, record
         external=_parse_external(external), record=record, namespace=namespace, domain_id=domain_id,
         deadline_ms=deadline_ms, startup_timeout_s=startup_timeout, rate_hz=rate, viewer_every=viewer_every,
         progress=not as_json and sys.stderr.isatty(), log_dir=log_dir, timeout_s=timeout,
+        view_port=view_port if live_view else None,
     )
+    if live_view:  # served by the world process (formic_view), announced here where the user looks
+        from formic_view import DEFAULT_HOST, address, announcement
+
+        click.echo(announcement(address(DEFAULT_HOST, view_port)), err=True)
     try:
         summary = launch(options)
     except KeyboardInterrupt:
@@ -140,10 +147,11 @@ def run(policy, model, greedy, scenario_file, hosts, transport, external, record
 @click.option("--first-episode", default=0, show_default=True,
               help="Training mode: global episode to start from (a resumed run's).")
 @click.option("--progress", is_flag=True, help="Show a progress bar on stderr.")
+@view_options(wait=False)
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as one JSON line.")
 def world(scenario_file, policy_label, namespace, domain_id, deadline_ms, startup_timeout, rate, viewer_every,
           dt, training_masks, observation_encoding, require, stay, train_config, episodes, first_episode, progress,
-          as_json, **world_kw) -> None:
+          live_view, view_port, as_json, **world_kw) -> None:
     """The world node: owns the simulation and steps it with the agents over ROS."""
     from formic_ros.world_node import WorldNodeOptions, serve_training_world, serve_world
 
@@ -151,7 +159,7 @@ def world(scenario_file, policy_label, namespace, domain_id, deadline_ms, startu
         namespace=namespace, deadline_s=deadline_ms / 1e3, startup_timeout_s=startup_timeout, rate_hz=rate,
         viewer_every=viewer_every, dt=dt, policy_label=policy_label, training_masks=training_masks,
         observation_encoding=observation_encoding,
-        require_subscribers=tuple(require), progress=progress,
+        require_subscribers=tuple(require), progress=progress, view_port=view_port if live_view else None,
     )
     if train_config:
         from formic_ros.trainer_node import load_train_config

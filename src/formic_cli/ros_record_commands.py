@@ -9,6 +9,8 @@ from pathlib import Path
 
 import click
 
+from .options import open_live_view, view_options
+
 NAMESPACE_HELP = "ROS namespace of the ForMIC topics and nodes."
 DOMAIN_HELP = "ROS_DOMAIN_ID for this process (default: the environment's)."
 
@@ -71,20 +73,35 @@ def record_command(out, topics, namespace, domain_id, model, duration, chunk_kb,
 @click.option("--republish", is_flag=True, help="Publish the recorded topics again on their recorded clock.")
 @click.option("--repair", is_flag=True, help="Rebuild the index and metadata.yaml of a recording cut short "
               "(the original file is kept as <name>.mcap.truncated).")
-@click.option("--rate", default=1.0, show_default=True, help="--republish speed factor (0: as fast as possible).")
+@view_options()
+@click.option("--rate", default=1.0, show_default=True,
+              help="--republish and --view speed factor (--view: of sim time; 0: as fast as possible).")
 @click.option("--topics", multiple=True, metavar="TOPIC[,TOPIC]", help="--republish only these topics.")
 @click.option("--wait", default=1.0, show_default=True,
               help="--republish starts once every topic has a subscriber, or after this many seconds.")
 @click.option("--domain-id", type=int, help=DOMAIN_HELP)
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
-def replay_command(recording, verify, republish, repair, rate, topics, wait, domain_id, as_json) -> None:
-    """Verify, republish or repair a recording (without a mode: describe it)."""
+def replay_command(recording, verify, republish, repair, live_view, view_port, view_wait, rate, topics, wait,
+                   domain_id, as_json) -> None:
+    """Verify, republish, view or repair a recording (without a mode: describe it)."""
     from formic_ros.bag import Recording, RecordingError, repair_recording
 
-    if verify + republish + repair > 1:
-        raise click.UsageError("choose one of --verify, --republish, --repair")
+    if verify + republish + repair + live_view > 1:
+        raise click.UsageError("choose one of --verify, --republish, --view, --repair")
     try:
-        if repair:
+        if live_view:
+            from formic_ros.replay import view_recording
+
+            view = open_live_view(view_port, wait=view_wait)
+            try:
+                steps = view_recording(recording, view, rate=rate)
+            finally:
+                view.close()
+            if as_json:
+                _emit({"recording": str(recording), "steps": steps, "view": view.url})
+            else:
+                click.echo(f"showed {steps} steps of {recording} on {view.url}")
+        elif repair:
             report = repair_recording(recording)
             result = {"repaired": report.repaired, "messages": report.messages,
                       "kept": str(report.kept) if report.kept else None, "note": report.note}

@@ -142,6 +142,7 @@ class RunOptions:
     progress: bool = False
     log_dir: str | None = None  # children's output there (one file each) instead of stderr
     timeout_s: float | None = None  # give up on the world after this long
+    view_port: int | None = None  # the world serves a live view (formic_view) on this port
 
 
 def world_command(opts: RunOptions, scenario_file: Path, label: str) -> list[str]:
@@ -156,6 +157,8 @@ def world_command(opts: RunOptions, scenario_file: Path, label: str) -> list[str
         args.append("--progress")
     if opts.record:  # the recorder must hear step 0
         args += ["--require-subscriber", qos.APPLIED_ACTIONS, "--require-subscriber", qos.STATE]
+    if opts.view_port is not None:
+        args += ["--view", "--view-port", str(opts.view_port)]
     return args
 
 

@@ -188,6 +188,24 @@ def render_recording(path: str | os.PathLike, out: str | os.PathLike, scale: int
     return render_frames_to_file(frames, out, fps=fps)
 
 
+def view_recording(path: str | os.PathLike, view, rate: float = 1.0, dt: float = 0.1) -> int:
+    """Re-simulate the recording into a live view (:class:`formic_view.LiveView`), paced at
+    ``rate`` times sim time (``dt`` s a step; ``rate`` 0: as fast as possible). Returns the
+    number of steps shown."""
+    episodes = [e for e in read_episodes(Recording(path)) if e.scenario is not None]
+    if not episodes:
+        raise ValueError(f"{path}: no scenario description recorded; nothing to show")
+    steps = 0
+    for episode in episodes:
+        start = time.monotonic()
+        for world in resimulate(episode):
+            if rate > 0:
+                time.sleep(max(0.0, start + world.t * dt / rate - time.monotonic()))
+            view.publish(world, final=world.done or world.t not in episode.actions)
+            steps += int(world.t > 0)
+    return steps
+
+
 def republish(path: str | os.PathLike, rate: float = 1.0, domain_id: int | None = None,
               topics: tuple[str, ...] = (), wait_s: float = 1.0, log=print) -> dict:
     """Publish the recorded messages again (their CDR bytes, with their recorded types and

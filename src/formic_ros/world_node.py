@@ -69,6 +69,7 @@ class WorldNodeOptions:
     observation_encoding: str = "compact"  # ObservationBatch: "compact" (lossless, ~10x smaller) or "float32"
     require_subscribers: tuple[str, ...] = ()  # topics (e.g. "applied_actions") needing a subscriber before step 0
     progress: bool = False
+    view_port: int | None = None  # live view (formic_view, Foxglove WebSocket) on this port; None: none
 
 
 class RateLimitedLog:
@@ -221,6 +222,12 @@ class WorldNode(Node):
                                      lambda msg, a=a: self._on_agent_action(a, msg), qos.STREAM)
         self._listening: list[int] = []
         self._listening_at = -np.inf
+        self.view = None  # the live view, fed after each step (formic_view; no ROS involved)
+        if options.view_port is not None:
+            from formic_view import LiveView, announcement
+
+            self.view = LiveView(port=options.view_port, dt=options.dt)
+            self.get_logger().info(announcement(self.view.url))
         self.load(scenario)
 
     def load(self, scenario: Scenario) -> None:
@@ -420,6 +427,8 @@ class WorldNode(Node):
         if self.applied_pub.get_subscription_count():  # volatile: nobody can read it later
             self.applied_pub.publish(convert.applied_actions(t, actions))
         self._publish_state(final=final)
+        if self.view is not None:
+            self.view.publish(self.world, final=final)
 
     def _summary(self, book: EpisodeBook, clock: dict) -> dict:
         """``formic sim``'s summary plus what the distributed run adds."""
@@ -504,7 +513,11 @@ def serve_world(
     with ros_session(domain_id) as executor:
         node = WorldNode(scenario, options)
         executor.add_node(node)
-        summary = node.run(executor)
+        try:
+            summary = node.run(executor)
+        finally:
+            if node.view is not None:
+                node.view.close()
         if on_summary is not None:
             on_summary(summary)
         try:

@@ -47,7 +47,7 @@ def render_frame(world: "World", scale: int = 4, caption: bool = False) -> np.nd
         raise ValueError(f"scale must be >= 1, got {scale}")
     height, width = world.grid.shape
     blocks = np.empty((height, scale, width, scale, 3), dtype=np.float32)
-    blocks[:] = _cell_colours(world)[:, None, :, None, :]
+    blocks[:] = cell_colours(world)[:, None, :, None, :]
     if scale >= 3:
         _outline_entries(world, blocks)
     _draw_agents(world, blocks)
@@ -57,8 +57,8 @@ def render_frame(world: "World", scale: int = 4, caption: bool = False) -> np.nd
     return frame
 
 
-def _cell_colours(world: "World") -> np.ndarray:
-    """One colour per cell, (H, W, 3) float32."""
+def cell_colours(world: "World") -> np.ndarray:
+    """One colour per cell, (H, W, 3) float32 (also the live view's world layer)."""
     grid = world.grid
     colours = np.empty(grid.shape + (3,), dtype=np.float32)
     colours[:] = FREE_COLOUR
