@@ -30,6 +30,16 @@ class AgentBatch:
     def __len__(self) -> int:
         return len(self.agent_ids)
 
+    def select(self, rows: np.ndarray) -> "AgentBatch":
+        """These rows of the batch (one policy group's agents); itself when that is every row."""
+        if len(rows) == len(self.agent_ids):
+            return self
+        return AgentBatch(
+            step=self.step, agent_ids=self.agent_ids[rows], observations=self.observations[rows],
+            action_mask=self.action_mask[rows], positions=self.positions[rows], loads=self.loads[rows],
+            queued=self.queued[rows], world_shape=self.world_shape,
+        )
+
     @classmethod
     def from_world(cls, world, agent_ids: np.ndarray | None = None, observations=None, action_mask=None) -> "AgentBatch":
         """Everything a world gives its agents (optionally a subset), for in-process runs."""
@@ -73,9 +83,16 @@ class Policy(ABC):
     """Observation batch in, action batch out."""
 
     name: str = "policy"
+    # One memory for the whole team (marks on a shared ground): its agents must stay in one
+    # process, so a distributed run does not split them across hosts.
+    shares_team_memory: bool = False
 
     def reset(self, n_agents: int, seed: int) -> None:
         """Start of an episode: forget all memory; seed any randomness."""
+
+    def wipe(self, steps: int | None = None) -> None:
+        """A pheromone wipeout of ``steps`` steps (default: the policy's own) starts (called before that step's :meth:`act`): policies that
+        keep marks of their own clear them here."""
 
     def forget(self, agent_ids: np.ndarray) -> None:
         """Forget the memory of these agents (one was swapped in mid-episode)."""
@@ -89,9 +106,13 @@ class CentralPolicy(ABC):
     """A policy that reads the full world state (the centralized planner)."""
 
     name: str = "central"
+    shares_team_memory: bool = True
 
     def reset(self, n_agents: int, seed: int) -> None:
         """Start of an episode."""
+
+    def wipe(self, steps: int | None = None) -> None:
+        """A pheromone wipeout starts."""
 
     @abstractmethod
     def act_world(self, world) -> np.ndarray:

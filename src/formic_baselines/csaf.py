@@ -76,7 +76,7 @@ a harness in which blocked agents deadlock. The differences, each from the refer
 
 - One-slot queues: its controller sets every queue's length to 1 (``rc.queue.length = 1``,
   caches and resources alike). The variant's run needs ``queue_len=1`` in the world:
-  ``formic_agent.registry.POLICY_WORLD_OVERRIDES``, which ``formic sim``, ``formic eval`` and
+  ``formic_runtime.registry.POLICY_WORLD_OVERRIDES``, which ``formic sim``, ``formic eval`` and
   ``formic run`` apply to the run's scenario (so the scenario recorded shows it).
 - Agents act in id order: its ``step_all_agents`` loop moves agent 1, then 2, ..., each
   seeing the moves before it; the world's ``agent_order="id"`` (same override).
@@ -254,7 +254,7 @@ class CSAFPolicy(Policy):
     """C-SAF (``view=3``) or C-SAF-11 (``view=11``), see the module docstring; ``reference``
     selects the reference variant (fixed tie order, blocked agents never yield)."""
 
-    uses_world_wipeouts = True  # the harness must call :meth:`wipe` at each wipeout start
+    shares_team_memory = True  # the marks of the whole team live on one ground
 
     def __init__(
         self,

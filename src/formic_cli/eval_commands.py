@@ -61,7 +61,7 @@ def eval_command(ctx, algorithms, sizes, teams, obstacles, envs, scenarios, seed
         else:
             click.echo(f"report: {summary['files'].get('report', '(no episodes)')}")
         return
-    from formic_agent.registry import POLICY_NAMES
+    from formic_runtime.registry import POLICY_NAMES
     from formic_eval import evaluate, generate_matrix, load_matrix, settings_grid
     from formic_eval.matrix import ENVIRONMENTS
     from formic_eval.paper import PAPER_STEPS
@@ -121,7 +121,7 @@ def eval_command(ctx, algorithms, sizes, teams, obstacles, envs, scenarios, seed
 
 def _policy_options(names: list[str], model: str | None, greedy: bool, no_pheromones: bool):
     """Check every algorithm can be built (baseline module present, model file loads)."""
-    from formic_agent.registry import DEFAULT_MODEL, make_policy
+    from formic_runtime.registry import DEFAULT_MODEL, make_policy
     from formic_eval import PolicyOptions
     from formic_eval.matrix import file_digest
 

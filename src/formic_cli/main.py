@@ -38,30 +38,27 @@ def emit_json(obj: dict) -> None:
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
 def sim(policy, model, greedy, scenario_file, out, gif, as_json, **world_kw) -> None:
     """One episode in one process, no ROS (the same result as `formic run`)."""
-    from formic_agent.episode import run_episode
-    from formic_agent.registry import apply_world_overrides, parse_team, world_overrides
+    from formic_runtime.episode import run_episode
+    from formic_runtime.registry import world_overrides
+    from formic_runtime.team import Team
+    from formic_runtime.threads import configure_threads
     from formic_world import Scenario, generate_scenario
     from formic_world.render import render_frame, render_frames_to_file, save_png
-
-    from .summary import episode_summary
 
     if scenario_file:
         scenario = Scenario.load(scenario_file)
     else:
         config, seed = world_config_from(world_kw)
         scenario = generate_scenario(config, seed)
-    try:  # the world the team needs (one-slot queues for csaf-ref), over the scenario's own
-        names = [name for name, _ in parse_team(policy, scenario.config.n_agents).groups]
-        overrides = world_overrides(names)
-        scenario = apply_world_overrides(scenario, names)
-    except ValueError as exc:
-        raise click.ClickException(str(exc)) from exc
+    configure_threads()
     frames = []
     on_step = (lambda w: frames.append(render_frame(w, scale=3))) if gif else None
-    try:
+    try:  # in the world the team needs (one-slot queues for csaf-ref), over the scenario's own
+        overrides = world_overrides(Team.parse(policy, scenario.config.n_agents).names)
         result = run_episode(scenario, policy, model=model, greedy=greedy, on_step=on_step)
     except (FileNotFoundError, ValueError) as exc:
         raise click.ClickException(str(exc)) from exc
+    scenario = result.world.scenario
     out_dir = Path(out)
     out_dir.mkdir(parents=True, exist_ok=True)
     picture = out_dir / "final.png"
@@ -70,7 +67,7 @@ def sim(policy, model, greedy, scenario_file, out, gif, as_json, **world_kw) -> 
     if gif:
         files["animation"] = str(out_dir / "episode.gif")
         render_frames_to_file(frames, files["animation"])
-    summary = episode_summary(scenario, policy, result)
+    summary = result.summary(scenario, policy)
     if overrides:
         summary["world_overrides"] = overrides
     summary["files"] = files

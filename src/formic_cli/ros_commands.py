@@ -45,7 +45,7 @@ def _load_scenario(scenario_file: str | None, world_kw: dict):
 
 
 def _parse_external(text: str | None) -> tuple[int, ...]:
-    from formic_ros.agent_host import parse_ids
+    from formic_runtime.team import parse_ids
 
     if not text:
         return ()
@@ -204,7 +204,8 @@ def _print_training_episode(summary: dict) -> None:
 def agents(ids, policy, model, greedy, transport, namespace, domain_id, name, threads, once, train_config,
            switch_weights, episodes, first_episode) -> None:
     """An agent host: many agents (each its own node by default) in one process."""
-    from formic_ros.agent_host import parse_ids, serve_agents
+    from formic_ros.agent_host import serve_agents
+    from formic_runtime.team import parse_ids
 
     try:
         agent_ids = parse_ids(ids)

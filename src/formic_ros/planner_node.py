@@ -15,7 +15,7 @@ import numpy as np
 from formic_interfaces.msg import ActionBatch, ScenarioDescription, WorldState
 from rclpy.node import Node
 
-from formic_agent.registry import make_policy
+from formic_runtime.registry import make_policy
 from formic_world import World
 
 from . import convert, qos

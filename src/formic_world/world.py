@@ -255,13 +255,15 @@ class World:
 
     # ------------------------------------------------------------ observation
     def _result(self, food: float) -> StepResult:
-        return StepResult(
+        """The step's result, also kept as :attr:`last_result` (a new world's step-0 one)."""
+        self.last_result = StepResult(
             observations=self.observer.observe(),
             action_mask=self.action_mask(),
             rewards=self.rewards.copy(),
             food=food,
             done=self.done,
         )
+        return self.last_result
 
     def action_mask(self) -> np.ndarray:
         """Environment validity of each action for each agent, (N, 5) bool."""
