@@ -113,7 +113,7 @@ from __future__ import annotations
 import numpy as np
 
 from formic_agent.policy import AgentBatch, Policy
-from formic_world.geometry import JOIN
+from formic_world.geometry import DIRECTION_DELTAS, JOIN, nest_centre
 from formic_world.observation import (
     CH_BLOCKED,
     CH_CACHE_ENTRY,
@@ -124,8 +124,8 @@ from formic_world.observation import (
     CH_RESOURCE_QUEUED,
 )
 
-_DR = (-1, 0, 1, 0)
-_DC = (0, 1, 0, -1)
+_DR = tuple(DIRECTION_DELTAS[:, 0].tolist())
+_DC = tuple(DIRECTION_DELTAS[:, 1].tolist())
 NORTH, EAST, SOUTH, WEST = range(4)
 NEW, SEARCH, RETURN, ORBIT, LEAVE, CLIMB, ERASE = range(7)
 STATE_NAMES = ("new", "search", "return", "orbit", "leave", "climb", "erase")
@@ -371,8 +371,8 @@ class CSAFPolicy(Policy):
     # -------------------------------------------------------------- transitions
     def _start(self, a: _Agent, load: float) -> None:
         """First sight of an agent: head away from the nest (diagonal ties split by id)."""
-        dr = a.row - (a.height // 2 - 0.5)
-        dc = a.col - (a.width // 2 - 0.5)
+        centre_r, centre_c = nest_centre(a.height, a.width)
+        dr, dc = a.row - centre_r, a.col - centre_c
         vertical = SOUTH if dr > 0 else NORTH
         horizontal = EAST if dc > 0 else WEST
         if abs(dr) != abs(dc):

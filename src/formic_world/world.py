@@ -31,6 +31,7 @@ from .geometry import (
     CACHE,
     DIRECTION_DELTAS,
     FREE,
+    N_ACTIONS,
     NEST_QUEUE_DIRECTIONS,
     RESOURCE,
     nest_cache_cells,
@@ -135,7 +136,7 @@ class World:
         self.t = 0
         self.rewards = np.zeros(n, dtype=np.float64)
         self.observer = ObservationBuilder(self)
-        self._mask = np.zeros((n, 5), dtype=np.bool_)
+        self._mask = np.zeros((n, N_ACTIONS), dtype=np.bool_)
         return self._result(food=0.0)
 
     def _enqueue_at_start(self, agent: int, q: int) -> None:
