@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import click
+
+from .summary import emit_json
 
 DEFAULT_ALGORITHMS = "formic,planner,csaf,csaf11,cardinality"
 DEFAULT_SIZES, DEFAULT_TEAMS, DEFAULT_OBSTACLES = "128", "16,32,64,128", "0,0.05"
@@ -57,7 +58,7 @@ def eval_command(ctx, algorithms, sizes, teams, obstacles, envs, scenarios, seed
 
         summary = report_everything(Path(out))
         if as_json:
-            click.echo(json.dumps(summary, default=float))
+            emit_json(summary)
         else:
             click.echo(f"report: {summary['files'].get('report', '(no episodes)')}")
         return
@@ -112,7 +113,7 @@ def eval_command(ctx, algorithms, sizes, teams, obstacles, envs, scenarios, seed
     except EpisodeError as exc:
         raise click.ClickException(f"episode failed ({exc}); finished episodes are kept, rerun to resume") from exc
     if as_json:
-        click.echo(json.dumps(summary, default=float))
+        emit_json(summary)
     else:
         _print_summary(summary)
     if summary["interrupted"]:

@@ -4,23 +4,19 @@
 
 from __future__ import annotations
 
-import json
 import sys
 from pathlib import Path
 
 import click
 
 from .options import world_options, world_config_from
+from .summary import emit_json, print_episode_summary
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
 @click.version_option(package_name="formic-ros")
 def cli() -> None:
     """ForMIC: multi-agent foraging with learned pheromone communication."""
-
-
-def emit_json(obj: dict) -> None:
-    click.echo(json.dumps(obj, default=float))
 
 
 # ----------------------------------------------------------------------------------- sim
@@ -74,8 +70,6 @@ def sim(policy, model, greedy, scenario_file, out, gif, as_json, **world_kw) -> 
     if as_json:
         emit_json(summary)
     else:
-        from .summary import print_episode_summary
-
         print_episode_summary(summary)
         if overrides:
             click.echo("world settings of this team: " + ", ".join(f"{k}={v!r}" for k, v in overrides.items()))

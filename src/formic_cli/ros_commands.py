@@ -5,26 +5,20 @@ inside the commands)."""
 
 from __future__ import annotations
 
-import json
 import signal
 import sys
 
 import click
 
 from .options import world_config_from, world_options
+from .summary import emit_json, print_episode_summary
 
 NAMESPACE_HELP = "ROS namespace of the ForMIC topics and nodes."
 DOMAIN_HELP = "ROS_DOMAIN_ID for this run (default: the environment's, else 0)."
 DEADLINE_HELP = "Lockstep: how long a step waits for the last action."
 
 
-def _echo_json(obj: dict) -> None:
-    click.echo(json.dumps(obj, default=float))
-
-
 def _print_ros_summary(summary: dict) -> None:
-    from .summary import print_episode_summary
-
     print_episode_summary(summary)
     rejected = summary.get("rejected_actions", {})
     click.echo(
@@ -106,7 +100,7 @@ def run(policy, model, greedy, scenario_file, hosts, transport, external, record
     except (RuntimeError, ValueError, FileNotFoundError) as exc:
         raise click.ClickException(str(exc)) from exc
     if as_json:
-        _echo_json(summary)
+        emit_json(summary)
     else:
         _print_ros_summary(summary)
         click.echo(f"{summary['hosts']} host process(es), {summary['transport']} transport"
@@ -165,10 +159,10 @@ def world(scenario_file, policy_label, namespace, domain_id, deadline_ms, startu
     try:
         if train_config:
             serve_training_world(cfg, episodes, options, first_episode=first_episode, domain_id=domain_id,
-                                 on_episode=_echo_json if as_json else _print_training_episode)
+                                 on_episode=emit_json if as_json else _print_training_episode)
         else:
             serve_world(_load_scenario(scenario_file, world_kw), options, domain_id=domain_id,
-                        on_summary=_echo_json if as_json else _print_ros_summary, stay=stay)
+                        on_summary=emit_json if as_json else _print_ros_summary, stay=stay)
     except KeyboardInterrupt:
         sys.exit(130)
 
@@ -273,7 +267,7 @@ def train_ros(preset, train_config, overrides, run_dir, episodes, fresh, switch_
     except (RuntimeError, ValueError, TypeError, FileNotFoundError) as exc:
         raise click.ClickException(str(exc)) from exc
     if as_json:
-        _echo_json(result)
+        emit_json(result)
         return
     trainer = result["trainer"]
     click.echo(f"trained {len(result['episodes'])} episodes from episode {result['first_episode']}: weights version "
@@ -320,7 +314,7 @@ def bench_ros(teams, transports, steps, size, repeats, domain_id, as_json) -> No
                            f"(world process {r['world_cpu_ms_per_step']:.2f} ms CPU a step, of which the core "
                            f"{r['world_step_ms']:.2f}; missed {r['missed_actions']})")
     if as_json:
-        _echo_json({"size": size, "steps": steps, "results": results})
+        emit_json({"size": size, "steps": steps, "results": results})
 
 
 def register(cli: click.Group) -> None:

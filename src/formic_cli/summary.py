@@ -3,11 +3,27 @@ food over time and what each agent did."""
 
 from __future__ import annotations
 
+import json
+
 import click
-import numpy as np
+
+
+def emit_json(obj: dict) -> None:
+    """The ``--json`` output of every command: one JSON object on stdout (numbers that JSON
+    does not know, such as NumPy's, as floats; anything else, such as paths, as text)."""
+    click.echo(json.dumps(obj, default=_plain))
+
+
+def _plain(value) -> float | str:
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return str(value)
 
 
 def print_episode_summary(summary: dict) -> None:
+    import numpy as np
+
     h, w = summary["size"]
     click.echo(
         f"{summary['policy']} | {h}x{w} world, {summary['agents']} agents, "
