@@ -192,6 +192,29 @@ def bench_policy(network, batch, threads, episodes, as_json) -> None:
         click.echo(f"  {key}: {value:,.1f}" if isinstance(value, float) else f"  {key}: {value}")
 
 
+@bench.command("decide")
+@click.option("--size", default=128, show_default=True)
+@click.option("--teams", default="16,32,64,128", show_default=True)
+@click.option("--steps", default=50, show_default=True)
+@click.option("--seed", default=0, show_default=True)
+@click.option("--policy", default="formic", show_default=True, help="Team spec (the shipped model for formic).")
+@click.option("--model", type=click.Path(dir_okay=False), help="Checkpoint for the formic policy.")
+@click.option("--threads", default=1, show_default=True, help="Torch threads (0: torch's default pool).")
+@click.option("--json", "as_json", is_flag=True)
+def bench_decide(size, teams, steps, seed, policy, model, threads, as_json) -> None:
+    """In-process decision time per step (as `formic sim` runs) for each team size."""
+    from formic_runtime.bench import bench_decide as run
+
+    results = run(size, [int(n) for n in teams.split(",")], steps, seed, policy, model, threads)
+    if as_json:
+        emit_json({"size": size, "steps": steps, "policy": policy, "threads": threads, "results": results})
+        return
+    click.echo(f"{policy}, world {size}x{size}, {steps} steps, {threads or 'default'} torch threads")
+    for r in results:
+        click.echo(f"  {r['agents']:4d} agents: decide {r['decide_ms_per_step']:7.2f} ms/step, "
+                   f"world {r['world_ms_per_step']:6.2f} ms/step")
+
+
 # --------------------------------------------------------------------------------- train
 @cli.command()
 @click.option("--preset", default="cpu", show_default=True, type=click.Choice(["cpu", "paper"]))

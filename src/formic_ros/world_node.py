@@ -337,7 +337,7 @@ class WorldNode(Node):
         opts, world, cfg = self.options, self.world, self.scenario.config
         horizon = cfg.episode_steps
         self._wait_for_subscribers(executor)
-        result = world.reset(self.scenario)
+        result = world.last_result if world.t == 0 else world.reset(self.scenario)  # a new world is reset
         book = EpisodeStats(cfg.n_agents, horizon)
         self._publish_state()
         started = tick = time.monotonic()
