@@ -31,9 +31,7 @@ class AgentBatch:
         return len(self.agent_ids)
 
     def select(self, rows: np.ndarray) -> "AgentBatch":
-        """These rows of the batch (one policy group's agents); itself when that is every row."""
-        if len(rows) == len(self.agent_ids):
-            return self
+        """These rows of the batch (one policy group's agents)."""
         return AgentBatch(
             step=self.step, agent_ids=self.agent_ids[rows], observations=self.observations[rows],
             action_mask=self.action_mask[rows], positions=self.positions[rows], loads=self.loads[rows],
@@ -41,21 +39,15 @@ class AgentBatch:
         )
 
     @classmethod
-    def from_world(cls, world, agent_ids: np.ndarray | None = None, observations=None, action_mask=None) -> "AgentBatch":
+    def from_world(cls, world, agent_ids=None, observations=None, action_mask=None) -> "AgentBatch":
         """Everything a world gives its agents (optionally a subset), for in-process runs."""
-        ids = np.arange(world.config.n_agents) if agent_ids is None else np.asarray(agent_ids)
-        obs = world.observer.observe() if observations is None else observations
-        mask = world.action_mask() if action_mask is None else action_mask
-        return cls(
-            step=world.t,
-            agent_ids=ids,
-            observations=obs[ids],
-            action_mask=mask[ids],
-            positions=world.pos[ids].copy(),
-            loads=world.loads[ids],
-            queued=world.queued[ids],
-            world_shape=world.grid.shape,
+        batch = cls(
+            step=world.t, agent_ids=np.arange(world.config.n_agents),
+            observations=world.observer.observe() if observations is None else observations,
+            action_mask=world.action_mask() if action_mask is None else action_mask,
+            positions=world.pos.copy(), loads=world.loads, queued=world.queued, world_shape=world.grid.shape,
         )
+        return batch if agent_ids is None else batch.select(np.asarray(agent_ids))
 
 
 def agent_uniforms(seed: int, step: int, agent_ids: np.ndarray, stream: int) -> np.ndarray:

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import click
 
-from .options import world_options, world_config_from
+from .options import scenario_from, team_options, world_config_from, world_options
 from .summary import emit_json, print_episode_summary
 
 
@@ -22,12 +22,7 @@ def cli() -> None:
 # ----------------------------------------------------------------------------------- sim
 @cli.command()
 @world_options
-@click.option("--policy", default="formic", show_default=True,
-              help="Policy for all agents, or a mix such as formic:0-31,csaf11:32-63.")
-@click.option("--model", type=click.Path(dir_okay=False), help="Checkpoint for the formic policy.")
-@click.option("--greedy", is_flag=True, help="Learned agents take the most likely action.")
-@click.option("--scenario", "scenario_file", type=click.Path(exists=True, dir_okay=False),
-              help="Run a stored scenario (its configuration wins over world options).")
+@team_options
 @click.option("--out", type=click.Path(file_okay=False), default="out/sim", show_default=True,
               help="Where the final picture (and --gif) go.")
 @click.option("--gif", is_flag=True, help="Also write an animation of the episode.")
@@ -38,14 +33,9 @@ def sim(policy, model, greedy, scenario_file, out, gif, as_json, **world_kw) -> 
     from formic_runtime.registry import world_overrides
     from formic_runtime.team import Team
     from formic_runtime.threads import configure_threads
-    from formic_world import Scenario, generate_scenario
     from formic_world.render import render_frame, render_frames_to_file, save_png
 
-    if scenario_file:
-        scenario = Scenario.load(scenario_file)
-    else:
-        config, seed = world_config_from(world_kw)
-        scenario = generate_scenario(config, seed)
+    scenario = scenario_from(scenario_file, world_kw)
     configure_threads()
     frames = []
     on_step = (lambda w: frames.append(render_frame(w, scale=3))) if gif else None
@@ -203,9 +193,18 @@ def bench_policy(network, batch, threads, episodes, as_json) -> None:
 @click.option("--json", "as_json", is_flag=True)
 def bench_decide(size, teams, steps, seed, policy, model, threads, as_json) -> None:
     """In-process decision time per step (as `formic sim` runs) for each team size."""
-    from formic_runtime.bench import bench_decide as run
+    from formic_runtime.episode import run_episode
+    from formic_runtime.threads import configure_threads
+    from formic_world import WorldConfig, generate_scenario
 
-    results = run(size, [int(n) for n in teams.split(",")], steps, seed, policy, model, threads)
+    if threads:
+        configure_threads(threads)
+    results = []
+    for n in map(int, teams.split(",")):  # step 0 (warming caches up) left out
+        config = WorldConfig(height=size, width=size, n_agents=n, episode_steps=steps)
+        stats = run_episode(generate_scenario(config, seed), policy, model=model)
+        results.append({"agents": n, "decide_ms_per_step": float(stats.decision_seconds[1:].mean() * 1e3),
+                        "world_ms_per_step": float(stats.step_seconds[1:].mean() * 1e3)})
     if as_json:
         emit_json({"size": size, "steps": steps, "policy": policy, "threads": threads, "results": results})
         return

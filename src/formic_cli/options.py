@@ -1,18 +1,26 @@
-"""World options shared by every command that builds a world (sim, run, eval, scenarios)."""
+"""Options shared by the commands: the world (sim, run, eval, scenarios) and the team (sim, run)."""
 
 from __future__ import annotations
-
-import functools
 
 import click
 
 from formic_world import WorldConfig
 
 
-def world_options(func):
-    """Add --agents --size --steps --seed --obstacles --resources --wipeouts --variant --view
-    --no-pheromones --timing."""
-    options = [
+def option_group(*options):
+    """A decorator adding these click options (in this order in ``--help``)."""
+
+    def decorate(func):
+        for option in reversed(options):
+            func = option(func)
+        return func
+
+    return decorate
+
+
+# --agents --size --steps --seed --obstacles --resources --wipeouts --variant --view
+# --no-pheromones --timing
+world_options = option_group(
         click.option("--agents", default=32, show_default=True, help="Team size."),
         click.option("--size", default=128, show_default=True, help="World side (square)."),
         click.option("--steps", default=512, show_default=True, help="Episode length."),
@@ -28,19 +36,27 @@ def world_options(func):
         click.option("--timing", type=click.Choice(["reference", "nominal"]), default="reference",
                      show_default=True, help="Service timing (SPEC §1): the reference code's (a load "
                      "takes 11 steps; a queue that moves up serves nobody that step) or exactly 1/rate."),
-    ]
-    for option in reversed(options):
-        func = option(func)
+)
 
-    @functools.wraps(func)
-    def wrapper(*args, **kwargs):
-        return func(*args, **kwargs)
-
-    return wrapper
+team_options = option_group(
+    click.option("--policy", default="formic", show_default=True,
+                 help="Policy for all agents, or a mix such as formic:0-31,csaf11:32-63."),
+    click.option("--model", type=click.Path(dir_okay=False), help="Checkpoint for the formic policy."),
+    click.option("--greedy", is_flag=True, help="Learned agents take the most likely action."),
+    click.option("--scenario", "scenario_file", type=click.Path(exists=True, dir_okay=False),
+                 help="Run a stored scenario (its configuration wins over world options)."),
+)
 
 
 WORLD_OPTION_NAMES = ("agents", "size", "steps", "seed", "obstacles", "resources", "wipeouts",
                       "variant", "view", "no_pheromones", "timing")
+
+
+def scenario_from(scenario_file: str | None, world_kw: dict):
+    """The stored scenario, or one generated from the world options."""
+    from formic_world import Scenario, generate_scenario
+
+    return Scenario.load(scenario_file) if scenario_file else generate_scenario(*world_config_from(world_kw))
 
 
 def world_config_from(kwargs: dict) -> tuple[WorldConfig, int]:

@@ -37,7 +37,7 @@ from rclpy.type_description_service import START_TYPE_DESCRIPTION_SERVICE_PARAM
 
 from formic_agent.policy import AgentBatch, CentralPolicy
 from formic_runtime.registry import world_overrides
-from formic_runtime.team import Team
+from formic_runtime.team import Team, format_ids
 from formic_runtime.threads import configure_threads
 from formic_world import Scenario
 
@@ -148,7 +148,7 @@ class AgentHost:
             self.log.error(f"this host's policies need a world with {wrong}, but the world serves "
                            f"{ {k: getattr(scenario.config, k) for k in wrong} }: `formic run` sets them")
         self._start_episode()
-        self.log.info(f"scenario seed {self.seed}: driving agents {_describe(self.ids)} ({self.transport})")
+        self.log.info(f"scenario seed {self.seed}: driving agents {format_ids(self.ids.tolist())} ({self.transport})")
 
     def _ready(self, step: int, done: bool) -> bool:
         """Whether an observation of ``step`` should be answered (handles episode ends and a
@@ -214,10 +214,6 @@ class AgentHost:
         if len(row):
             action = int(self.answer[row[0]])
             self.action_pubs[agent].publish(AgentAction(step=self.answered_step, agent_id=agent, action=action))
-
-
-def _describe(ids: np.ndarray) -> str:
-    return f"{ids[0]}-{ids[-1]}" if len(ids) == ids[-1] - ids[0] + 1 else ",".join(map(str, ids.tolist()))
 
 
 class WorldWatch:

@@ -28,7 +28,6 @@ class EpisodeStats:
         self.step_seconds = np.zeros(horizon)  # wall time of the world step
         self.food = 0.0
         self.world: World | None = None
-        self.digests: list[str] = []
 
     def record(self, t: int, world: World, loads_before: np.ndarray, queued_before: np.ndarray,
                decision_s: float, step_s: float) -> None:
@@ -78,7 +77,6 @@ def run_episode(
     greedy: bool = False,
     steps: int | None = None,
     on_step: Callable[[World], None] | None = None,
-    record_digests: bool = False,
 ) -> EpisodeStats:
     """Run ``scenario`` to its end (or ``steps``) with a team (a spec, or a :class:`Team`,
     built here unless it already is), in the world the team's policies need
@@ -105,8 +103,6 @@ def run_episode(
         queued, before = world.queued.copy(), world.loads.copy()
         result = world.step(actions)
         stats.record(t, world, before, queued, t1 - t0, time.perf_counter() - t1)
-        if record_digests:
-            stats.digests.append(world.state_digest())
         if on_step is not None:
             on_step(world)
     return stats

@@ -171,6 +171,6 @@ class Team:
                 actions[:] = policy.act_world(world)
                 continue
             rows = np.flatnonzero(np.isin(batch.agent_ids, ids))
-            if len(rows):
-                actions[rows] = policy.act(batch.select(rows))
+            if len(rows):  # one policy for every row: the batch itself, no copy
+                actions[rows] = policy.act(batch if len(rows) == len(batch) else batch.select(rows))
         return actions
