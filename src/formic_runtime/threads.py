@@ -1,11 +1,11 @@
 """The thread settings of a process that runs policies.
 
 torch's intra-op pool defaults to one OpenMP thread per core, and OpenMP workers spin for a
-while after each parallel region: beside a single-threaded numba world step and other
-processes, those spinning threads take the cores the next step needs. A team's batch is small
-(at most a few hundred rows), so one thread is the fast setting (measured: ``formic sim
---agents 128 --policy formic`` on a busy 2-core machine, 221 ms decisions and 104 ms world
-steps per step with the default pool, 42 and 4 ms with one thread)."""
+while after each parallel region: beside the (single-threaded) numba world step, the DDS
+threads and other processes they take the cores the next step needs. A team's batch is small,
+so one thread is the fast setting. ``formic bench decide`` on a busy 2-core machine, 16/32/64/128
+agents: 436/364/165/195 ms of decisions a step with torch's default pool, 9.5/12/20/35 ms with
+one thread."""
 
 from __future__ import annotations
 
