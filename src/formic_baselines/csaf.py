@@ -113,7 +113,7 @@ from __future__ import annotations
 import numpy as np
 
 from formic_agent.policy import AgentBatch, Policy
-from formic_world.geometry import DIRECTION_DELTAS, JOIN, nest_centre
+from formic_world.geometry import DIRECTION_DELTAS, JOIN, nest_cache_cells, nest_centre
 from formic_world.observation import (
     CH_BLOCKED,
     CH_CACHE_ENTRY,
@@ -581,21 +581,21 @@ class CSAFPolicy(Policy):
 
     def _home(self, a: _Agent) -> int:
         """One step straight towards the nest (odometry)."""
-        h, w = a.height // 2, a.width // 2
+        h, w = nest_cache_cells(a.height, a.width)[-1]  # the SE cache
         dr = min(max(a.row, h - 1), h) - a.row
         dc = min(max(a.col, w - 1), w) - a.col
         return self._toward(a, dr, dc)
 
     def _ring(self, row: int, col: int, a: _Agent) -> int:
         """Chebyshev distance from the 2x2 nest (1: the cells around the caches)."""
-        h, w = a.height // 2, a.width // 2
+        h, w = nest_cache_cells(a.height, a.width)[-1]  # the SE cache
         return max(h - 1 - row, row - h, w - 1 - col, col - w, 0)
 
     def _orbit(self, a: _Agent) -> int:
         """Circle the nest clockwise with the caches and the cache queues on the right: the
         move towards the nest when it gets closer, else around, else away from it."""
         i = a.i
-        h, w = a.height // 2, a.width // 2
+        h, w = nest_cache_cells(a.height, a.width)[-1]  # the SE cache
         r, c = a.row, a.col
         if r <= h - 2 and c <= w:
             around = EAST

@@ -2,7 +2,7 @@
 
 A cell's ``food_std`` is the sample standard deviation over its scenarios (ddof=1; 0 for a
 single scenario). Per-step time is the team's decision time (all agents choosing actions,
-``EpisodeResult.decision_seconds``), averaged over steps then scenarios; per agent it is that
+``EpisodeStats.decision_seconds``), averaged over steps then scenarios; per agent it is that
 divided by the team size.
 """
 
@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import csv
 import json
-import os
 from collections.abc import Iterable
 from pathlib import Path
 

@@ -9,7 +9,6 @@ every rule's meaning is documented in ``world.py``.
 from __future__ import annotations
 
 import numba as nb
-import numpy as np
 
 from .geometry import DIRECTION_DELTAS
 
