@@ -434,25 +434,13 @@ def serve_learning_agents(
         return host.episodes
 
 
-def serve_agents(
-    agent_ids: list[int],
-    spec: str,
-    model: str | None = None,
-    greedy: bool = False,
-    transport: str = "per-agent",
-    namespace: str = qos.DEFAULT_NAMESPACE,
-    name: str | None = None,
-    once: bool = False,
-    domain_id: int | None = None,
-    torch_threads: int = 1,
-) -> int:
-    """Host these agents until interrupted (or, with ``once``, until an episode ends);
-    returns the number of episodes played."""
+def serve_agents(agent_ids: list[int], spec: str, once: bool = False, domain_id: int | None = None, **settings) -> int:
+    """Host these agents (``settings``: :class:`AgentHost`'s) until interrupted (or, with
+    ``once``, until an episode ends); returns the number of episodes played."""
     from .env import ros_session
 
     with ros_session(domain_id) as executor:
-        host = AgentHost(agent_ids, spec, model=model, greedy=greedy, transport=transport,
-                         namespace=namespace, name=name, torch_threads=torch_threads)
+        host = AgentHost(agent_ids, spec, **settings)
         for node in host.nodes:
             executor.add_node(node)
         watch = WorldWatch(host.control)
