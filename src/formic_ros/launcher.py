@@ -139,14 +139,14 @@ def world_command(opts: RunOptions, scenario_file: Path, label: str) -> list[str
 
 def recorder_command(opts: RunOptions, team: Team) -> list[str]:
     args = ["record", "--out", opts.record, "--namespace", opts.namespace]
-    if "formic" in dict(team.groups):
+    if "formic" in team.names:
         args += ["--model", str(opts.model or DEFAULT_MODEL)]
     return args
 
 
 def driver_commands(opts: RunOptions, team: Team) -> dict[str, list[str]]:
     """The processes that answer the world: the planner node, or the agent hosts."""
-    if "planner" in dict(team.groups):
+    if "planner" in team.names:
         return {"planner": ["planner", "--namespace", opts.namespace, "--once"]}
     commands = {}
     for i, ids in enumerate(team.split(opts.hosts)):
@@ -194,7 +194,7 @@ def launch(opts: RunOptions) -> dict:
     # The world the team needs (one-slot queues for csaf-ref): the world node serves, and the
     # recorder records, this scenario, so a replay re-simulates the same world.
     scenario = apply_world_overrides(opts.scenario, team.names)
-    if "planner" in dict(team.groups) and opts.external:
+    if "planner" in team.names and opts.external:
         raise ValueError("the planner commands every agent; it cannot leave some to --external")
     check_domain_id(opts.domain_id)
     env = ros_environment(opts.domain_id)
