@@ -14,11 +14,11 @@ import pytest
 import torch
 
 from formic_agent.checkpoint import CheckpointError, load_network, save_checkpoint
-from formic_agent.episode import run_episode
+from formic_runtime.episode import run_episode
 from formic_agent.learned import LearnedPolicy
 from formic_agent.network import NETWORK_PRESETS, ForMICNet, NetworkConfig, count_parameters
 from formic_agent.policy import AgentBatch
-from formic_agent.registry import make_policy
+from formic_runtime.registry import make_policy
 from formic_trainer.train import (
     MetaAgents,
     Trainer,

@@ -12,16 +12,16 @@ import numpy as np
 import pytest
 from conftest import SE_QUEUE, agent, build_world, cells_of, resource, step
 
-from formic_agent.episode import run_episode
-from formic_agent.policy import AgentBatch
-from formic_agent.registry import (
+from formic_runtime.episode import run_episode
+from formic_agent.policy import AgentBatch, Policy
+from formic_runtime.registry import (
     POLICY_NAMES,
     POLICY_WORLD_OVERRIDES,
     apply_world_overrides,
     make_policy,
-    parse_team,
     world_overrides,
 )
+from formic_runtime.team import Team
 from formic_baselines.csaf import CLIMB, LEAVE, NO_TRAIL, CSAF11Policy, CSAFPolicy, PheromoneGround
 from formic_world import Scenario, World, WorldConfig, generate_scenario
 from formic_world.geometry import EAST, JOIN, NORTH, SOUTH, WEST
@@ -62,7 +62,7 @@ def episode(policy, size: int, n_agents: int, seed: int) -> float:
 
 def test_names_and_wipeout_flag():
     assert CSAFPolicy().name == "csaf" and CSAF11Policy().name == "csaf11"
-    assert CSAFPolicy.uses_world_wipeouts and CSAF11Policy().view == 11
+    assert CSAFPolicy.wipe is not Policy.wipe and CSAFPolicy.shares_team_memory and CSAF11Policy().view == 11
 
 
 def test_searching_agent_next_to_a_resource_queue_steps_in_and_joins():
@@ -321,14 +321,14 @@ def test_world_overrides_of_the_reference_variants():
     changed = apply_world_overrides(scenario, ["csaf11-ref"])
     assert changed.config == scenario.config.replace(**needs) and changed.agents == scenario.agents
     assert Scenario.from_json(changed.to_json()).config.queue_len == 1  # stored and reloaded
-    team = parse_team("csaf11-ref:0-3,csaf-ref:4-7", 8)
+    team = Team.parse("csaf11-ref:0-3,csaf-ref:4-7", 8)
     assert [name for name, _ in team.groups] == ["csaf11-ref", "csaf-ref"]
 
 
 def test_runs_of_the_reference_variants_get_their_world(tmp_path, monkeypatch):
     from click.testing import CliRunner
 
-    import formic_agent.episode
+    import formic_runtime.episode
     from formic_cli.main import cli
     from formic_eval import runner
     from formic_eval.matrix import PolicyOptions, Setting, generate_matrix, plan_tasks
@@ -346,7 +346,7 @@ def test_runs_of_the_reference_variants_get_their_world(tmp_path, monkeypatch):
         ran.append(scenario.config)
         return run_episode(scenario, *args, **kwargs)
 
-    monkeypatch.setattr(formic_agent.episode, "run_episode", spy)
+    monkeypatch.setattr(formic_runtime.episode, "run_episode", spy)
     record = runner.run_task(task)
     monkeypatch.undo()
     assert [(c.queue_len, c.agent_order) for c in ran] == [(1, "id")]

@@ -22,7 +22,7 @@ from formic_world.scenario_sets import generate_set
 
 
 def _available(name: str) -> bool:
-    from formic_agent.registry import make_policy
+    from formic_runtime.registry import make_policy
 
     try:
         make_policy(name)
@@ -226,19 +226,19 @@ def test_no_pheromones_and_greedy_apply_to_the_learned_policy_only(tmp_path, mon
     assert (tasks["random"].variant, tasks["random"].no_pheromones, tasks["random"].model) == ("", False, None)
     assert tasks["formic"].key != tasks["random"].key
 
-    import formic_agent.episode
-    import formic_agent.registry
+    import formic_runtime.episode
+    import formic_runtime.registry
     from formic_baselines.random_policy import RandomPolicy
 
     seen = []
-    real = formic_agent.episode.run_episode
-    monkeypatch.setattr(formic_agent.registry, "make_policy", lambda name, model=None, greedy=False: RandomPolicy())
+    real = formic_runtime.episode.run_episode
+    monkeypatch.setattr(formic_runtime.registry, "make_policy", lambda name, model=None, greedy=False: RandomPolicy())
 
     def spy(scenario, *args, **kwargs):
         seen.append(scenario.config.pheromones_visible)
         return real(scenario, *args, **kwargs)
 
-    monkeypatch.setattr(formic_agent.episode, "run_episode", spy)
+    monkeypatch.setattr(formic_runtime.episode, "run_episode", spy)
     from formic_eval.runner import run_task
 
     record = run_task(tasks["formic"])

@@ -23,12 +23,10 @@ from ros_helpers import (  # noqa: E402
     running,
 )
 
-from formic_agent.episode import run_episode  # noqa: E402
+from formic_runtime.episode import run_episode  # noqa: E402
 from formic_agent.policy import AgentBatch  # noqa: E402
-from formic_agent.registry import parse_team  # noqa: E402
+from formic_runtime.team import Team, parse_ids  # noqa: E402
 from formic_ros import convert  # noqa: E402
-from formic_ros.agent_host import parse_ids, policy_groups  # noqa: E402
-from formic_ros.launcher import split_team  # noqa: E402
 from formic_ros.world_node import ActionInbox, RateLimitedLog  # noqa: E402
 from formic_world import NO_ACTION, World, WorldConfig, generate_scenario  # noqa: E402
 
@@ -73,23 +71,23 @@ def sim_result(steps: int, policy: str) -> tuple[float, str]:
 
 # ------------------------------------------------------------------------ no processes
 def test_team_split_keeps_shared_mark_teams_whole():
-    team = parse_team("random:0-5,csaf11:6-9", 10)
-    hosts = split_team(team, 2)
+    team = Team.parse("random:0-5,csaf11:6-9", 10)
+    hosts = team.split(2)
     assert sorted(sum(hosts, [])) == list(range(10))
     assert any(set(range(6, 10)) <= set(h) for h in hosts)
     assert [len(h) for h in hosts] == [5, 5]
-    assert split_team(parse_team("random", 3), 5) == [[0], [1], [2]]
+    assert Team.parse("random", 3).split(5) == [[0], [1], [2]]
 
 
 def test_host_policy_groups_use_global_ids():
     assert parse_ids("0-3,8+10-11") == [0, 1, 2, 3, 8, 10, 11]
-    groups = policy_groups("formic:0-15,csaf11:16-31", [14, 15, 16])
-    assert [(name, ids.tolist()) for name, ids in groups] == [("formic", [14, 15]), ("csaf11", [16])]
-    assert [n for n, _ in policy_groups("random,csaf:4", [3, 4])] == ["random", "csaf"]
+    groups = Team.for_agents("formic:0-15,csaf11:16-31", [14, 15, 16]).groups
+    assert [(name, list(ids)) for name, ids in groups] == [("formic", [14, 15]), ("csaf11", [16])]
+    assert Team.for_agents("random,csaf:4", [3, 4]).names == ["random", "csaf"]
     with pytest.raises(ValueError, match="no policy"):
-        policy_groups("random:0-3", [4])
+        Team.for_agents("random:0-3", [4])
     with pytest.raises(ValueError, match="planner"):
-        policy_groups("planner", [0])
+        Team.for_agents("planner", [0])
 
 
 def test_messages_carry_exactly_what_policies_see():

@@ -9,11 +9,12 @@ from __future__ import annotations
 import hashlib
 import io
 import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
 import torch
+
+from formic_world.files import atomic_open
 
 from .network import ForMICNet, NetworkConfig
 
@@ -34,19 +35,8 @@ def save_checkpoint(path: str | os.PathLike, net: ForMICNet, **extra: Any) -> No
         "state_dict": net.state_dict(),
         **extra,
     }
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as handle:
-            torch.save(payload, handle)
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.chmod(tmp, 0o644)  # mkstemp creates 0600; a model file is meant to be shared
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with atomic_open(path, "wb") as handle:
+        torch.save(payload, handle)
 
 
 def read_checkpoint(source: str | os.PathLike | bytes) -> dict[str, Any]:

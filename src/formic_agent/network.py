@@ -14,7 +14,8 @@ import numpy as np
 import torch
 from torch import nn
 
-N_ACTIONS = 5
+from formic_world.geometry import N_ACTIONS, nest_centre
+
 
 
 @dataclass(frozen=True)
@@ -53,8 +54,7 @@ def nest_features(positions: np.ndarray, loads: np.ndarray, world_shape: tuple[i
     vector, the distance in units of 32 cells, and the agent's load. Kept at unit scale: raw
     offsets divided by the world size are tiny near the nest, and the network then learned
     homing far more slowly (measured)."""
-    height, width = world_shape
-    offset = np.stack([height // 2 - 0.5 - positions[:, 0], width // 2 - 0.5 - positions[:, 1]], axis=1)
+    offset = np.asarray(nest_centre(*world_shape)) - positions
     distance = np.linalg.norm(offset, axis=1, keepdims=True)
     return np.concatenate([offset / distance, distance / 32.0, loads[:, None]], axis=1).astype(np.float32)
 

@@ -30,22 +30,24 @@ class AgentBatch:
     def __len__(self) -> int:
         return len(self.agent_ids)
 
-    @classmethod
-    def from_world(cls, world, agent_ids: np.ndarray | None = None, observations=None, action_mask=None) -> "AgentBatch":
-        """Everything a world gives its agents (optionally a subset), for in-process runs."""
-        ids = np.arange(world.config.n_agents) if agent_ids is None else np.asarray(agent_ids)
-        obs = world.observer.observe() if observations is None else observations
-        mask = world.action_mask() if action_mask is None else action_mask
-        return cls(
-            step=world.t,
-            agent_ids=ids,
-            observations=obs[ids],
-            action_mask=mask[ids],
-            positions=world.pos[ids].copy(),
-            loads=world.loads[ids],
-            queued=world.queued[ids],
-            world_shape=world.grid.shape,
+    def select(self, rows: np.ndarray) -> "AgentBatch":
+        """These rows of the batch (one policy group's agents)."""
+        return AgentBatch(
+            step=self.step, agent_ids=self.agent_ids[rows], observations=self.observations[rows],
+            action_mask=self.action_mask[rows], positions=self.positions[rows], loads=self.loads[rows],
+            queued=self.queued[rows], world_shape=self.world_shape,
         )
+
+    @classmethod
+    def from_world(cls, world, agent_ids=None, observations=None, action_mask=None) -> "AgentBatch":
+        """Everything a world gives its agents (optionally a subset), for in-process runs."""
+        batch = cls(
+            step=world.t, agent_ids=np.arange(world.config.n_agents),
+            observations=world.observer.observe() if observations is None else observations,
+            action_mask=world.action_mask() if action_mask is None else action_mask,
+            positions=world.pos.copy(), loads=world.loads, queued=world.queued, world_shape=world.grid.shape,
+        )
+        return batch if agent_ids is None else batch.select(np.asarray(agent_ids))
 
 
 def agent_uniforms(seed: int, step: int, agent_ids: np.ndarray, stream: int) -> np.ndarray:
@@ -73,9 +75,16 @@ class Policy(ABC):
     """Observation batch in, action batch out."""
 
     name: str = "policy"
+    # One memory for the whole team (marks on a shared ground): its agents must stay in one
+    # process, so a distributed run does not split them across hosts.
+    shares_team_memory: bool = False
 
     def reset(self, n_agents: int, seed: int) -> None:
         """Start of an episode: forget all memory; seed any randomness."""
+
+    def wipe(self, steps: int | None = None) -> None:
+        """A pheromone wipeout of ``steps`` steps (default: the policy's own) starts (called before that step's :meth:`act`): policies that
+        keep marks of their own clear them here."""
 
     def forget(self, agent_ids: np.ndarray) -> None:
         """Forget the memory of these agents (one was swapped in mid-episode)."""
@@ -89,9 +98,13 @@ class CentralPolicy(ABC):
     """A policy that reads the full world state (the centralized planner)."""
 
     name: str = "central"
+    shares_team_memory: bool = True
 
     def reset(self, n_agents: int, seed: int) -> None:
         """Start of an episode."""
+
+    def wipe(self, steps: int | None = None) -> None:
+        """A pheromone wipeout starts."""
 
     @abstractmethod
     def act_world(self, world) -> np.ndarray:

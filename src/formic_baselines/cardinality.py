@@ -62,6 +62,7 @@ class CardinalityPolicy(Policy):
     """Walkers and beacons (Cardinality-MR)."""
 
     name = "cardinality"
+    shares_team_memory = True
 
     def __init__(
         self,

@@ -76,7 +76,7 @@ a harness in which blocked agents deadlock. The differences, each from the refer
 
 - One-slot queues: its controller sets every queue's length to 1 (``rc.queue.length = 1``,
   caches and resources alike). The variant's run needs ``queue_len=1`` in the world:
-  ``formic_agent.registry.POLICY_WORLD_OVERRIDES``, which ``formic sim``, ``formic eval`` and
+  ``formic_runtime.registry.POLICY_WORLD_OVERRIDES``, which ``formic sim``, ``formic eval`` and
   ``formic run`` apply to the run's scenario (so the scenario recorded shows it).
 - Agents act in id order: its ``step_all_agents`` loop moves agent 1, then 2, ..., each
   seeing the moves before it; the world's ``agent_order="id"`` (same override).
@@ -113,7 +113,7 @@ from __future__ import annotations
 import numpy as np
 
 from formic_agent.policy import AgentBatch, Policy
-from formic_world.geometry import JOIN
+from formic_world.geometry import DIRECTION_DELTAS, JOIN, nest_cache_cells, nest_centre
 from formic_world.observation import (
     CH_BLOCKED,
     CH_CACHE_ENTRY,
@@ -124,8 +124,8 @@ from formic_world.observation import (
     CH_RESOURCE_QUEUED,
 )
 
-_DR = (-1, 0, 1, 0)
-_DC = (0, 1, 0, -1)
+_DR = tuple(DIRECTION_DELTAS[:, 0].tolist())
+_DC = tuple(DIRECTION_DELTAS[:, 1].tolist())
 NORTH, EAST, SOUTH, WEST = range(4)
 NEW, SEARCH, RETURN, ORBIT, LEAVE, CLIMB, ERASE = range(7)
 STATE_NAMES = ("new", "search", "return", "orbit", "leave", "climb", "erase")
@@ -254,7 +254,7 @@ class CSAFPolicy(Policy):
     """C-SAF (``view=3``) or C-SAF-11 (``view=11``), see the module docstring; ``reference``
     selects the reference variant (fixed tie order, blocked agents never yield)."""
 
-    uses_world_wipeouts = True  # the harness must call :meth:`wipe` at each wipeout start
+    shares_team_memory = True  # the marks of the whole team live on one ground
 
     def __init__(
         self,
@@ -371,8 +371,8 @@ class CSAFPolicy(Policy):
     # -------------------------------------------------------------- transitions
     def _start(self, a: _Agent, load: float) -> None:
         """First sight of an agent: head away from the nest (diagonal ties split by id)."""
-        dr = a.row - (a.height // 2 - 0.5)
-        dc = a.col - (a.width // 2 - 0.5)
+        centre_r, centre_c = nest_centre(a.height, a.width)
+        dr, dc = a.row - centre_r, a.col - centre_c
         vertical = SOUTH if dr > 0 else NORTH
         horizontal = EAST if dc > 0 else WEST
         if abs(dr) != abs(dc):
@@ -581,21 +581,21 @@ class CSAFPolicy(Policy):
 
     def _home(self, a: _Agent) -> int:
         """One step straight towards the nest (odometry)."""
-        h, w = a.height // 2, a.width // 2
+        h, w = nest_cache_cells(a.height, a.width)[-1]  # the SE cache
         dr = min(max(a.row, h - 1), h) - a.row
         dc = min(max(a.col, w - 1), w) - a.col
         return self._toward(a, dr, dc)
 
     def _ring(self, row: int, col: int, a: _Agent) -> int:
         """Chebyshev distance from the 2x2 nest (1: the cells around the caches)."""
-        h, w = a.height // 2, a.width // 2
+        h, w = nest_cache_cells(a.height, a.width)[-1]  # the SE cache
         return max(h - 1 - row, row - h, w - 1 - col, col - w, 0)
 
     def _orbit(self, a: _Agent) -> int:
         """Circle the nest clockwise with the caches and the cache queues on the right: the
         move towards the nest when it gets closer, else around, else away from it."""
         i = a.i
-        h, w = a.height // 2, a.width // 2
+        h, w = nest_cache_cells(a.height, a.width)[-1]  # the SE cache
         r, c = a.row, a.col
         if r <= h - 2 and c <= w:
             around = EAST

@@ -38,16 +38,16 @@ import numba as nb
 import numpy as np
 
 from formic_agent.policy import CentralPolicy
-from formic_world.geometry import FREE, JOIN
-from formic_world.kernels import JOIN_OK, find_join
+from formic_world.geometry import DIRECTION_DELTAS, FREE, JOIN
+from formic_world.kernels import JOIN_OK, find_join, queue_entry_spot
 
 UNREACHABLE = np.int32(1 << 28)
 NO_TARGET = -1
 SPREAD = -2  # the agent heads for a random cell: no resource can take it
 SIDESTEP_SLACK = 2  # a detour around a waiting agent may cost this many extra steps
 
-_DR = np.array([-1, 0, 1, 0], dtype=np.int64)
-_DC = np.array([0, 1, 0, -1], dtype=np.int64)
+_DR = DIRECTION_DELTAS[:, 0].copy()
+_DC = DIRECTION_DELTAS[:, 1].copy()
 
 
 # ----------------------------------------------------------------------------- kernels
@@ -291,9 +291,9 @@ class CentralizedPlanner(CentralPolicy):
         past the queue's end when the queue is full."""
         count, head = world.queue_count, world.queue_head
         qlen = world.config.queue_len
-        spot = np.where(count == 0, 0, head + count)
-        full = spot >= qlen
-        cells = world.queue_cells[np.arange(len(spot)), np.minimum(spot, qlen - 1)].copy()
+        spot = queue_entry_spot(count, head, qlen)
+        full = spot < 0
+        cells = world.queue_cells[np.arange(len(spot)), spot].copy()  # full (-1): replaced below
         outward = world.queue_cells[:, 1] - world.queue_cells[:, 0]
         held = ~full & (world.agent_at[cells[:, 0], cells[:, 1]] >= 0)
         cells[full] = world.queue_cells[full, -1] + outward[full]

@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import click
+
+from .summary import emit_json
 
 DEFAULT_ALGORITHMS = "formic,planner,csaf,csaf11,cardinality"
 DEFAULT_SIZES, DEFAULT_TEAMS, DEFAULT_OBSTACLES = "128", "16,32,64,128", "0,0.05"
@@ -57,11 +58,11 @@ def eval_command(ctx, algorithms, sizes, teams, obstacles, envs, scenarios, seed
 
         summary = report_everything(Path(out))
         if as_json:
-            click.echo(json.dumps(summary, default=float))
+            emit_json(summary)
         else:
             click.echo(f"report: {summary['files'].get('report', '(no episodes)')}")
         return
-    from formic_agent.registry import POLICY_NAMES
+    from formic_runtime.registry import POLICY_NAMES
     from formic_eval import evaluate, generate_matrix, load_matrix, settings_grid
     from formic_eval.matrix import ENVIRONMENTS
     from formic_eval.paper import PAPER_STEPS
@@ -112,7 +113,7 @@ def eval_command(ctx, algorithms, sizes, teams, obstacles, envs, scenarios, seed
     except EpisodeError as exc:
         raise click.ClickException(f"episode failed ({exc}); finished episodes are kept, rerun to resume") from exc
     if as_json:
-        click.echo(json.dumps(summary, default=float))
+        emit_json(summary)
     else:
         _print_summary(summary)
     if summary["interrupted"]:
@@ -121,7 +122,7 @@ def eval_command(ctx, algorithms, sizes, teams, obstacles, envs, scenarios, seed
 
 def _policy_options(names: list[str], model: str | None, greedy: bool, no_pheromones: bool):
     """Check every algorithm can be built (baseline module present, model file loads)."""
-    from formic_agent.registry import DEFAULT_MODEL, make_policy
+    from formic_runtime.registry import DEFAULT_MODEL, make_policy
     from formic_eval import PolicyOptions
     from formic_eval.matrix import file_digest
 

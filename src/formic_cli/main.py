@@ -4,13 +4,13 @@
 
 from __future__ import annotations
 
-import json
 import sys
 from pathlib import Path
 
 import click
 
-from .options import open_live_view, view_options, world_config_from, world_options
+from .options import open_live_view, scenario_from, team_options, view_options, world_config_from, world_options
+from .summary import emit_json, print_episode_summary
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
@@ -19,19 +19,10 @@ def cli() -> None:
     """ForMIC: multi-agent foraging with learned pheromone communication."""
 
 
-def emit_json(obj: dict) -> None:
-    click.echo(json.dumps(obj, default=float))
-
-
 # ----------------------------------------------------------------------------------- sim
 @cli.command()
 @world_options
-@click.option("--policy", default="formic", show_default=True,
-              help="Policy for all agents, or a mix such as formic:0-31,csaf11:32-63.")
-@click.option("--model", type=click.Path(dir_okay=False), help="Checkpoint for the formic policy.")
-@click.option("--greedy", is_flag=True, help="Learned agents take the most likely action.")
-@click.option("--scenario", "scenario_file", type=click.Path(exists=True, dir_okay=False),
-              help="Run a stored scenario (its configuration wins over world options).")
+@team_options
 @click.option("--out", type=click.Path(file_okay=False), default="out/sim", show_default=True,
               help="Where the final picture (and --gif) go.")
 @click.option("--gif", is_flag=True, help="Also write an animation of the episode.")
@@ -39,24 +30,14 @@ def emit_json(obj: dict) -> None:
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
 def sim(policy, model, greedy, scenario_file, out, gif, live_view, view_port, view_wait, as_json, **world_kw) -> None:
     """One episode in one process, no ROS (the same result as `formic run`)."""
-    from formic_agent.episode import run_episode
-    from formic_agent.registry import apply_world_overrides, parse_team, world_overrides
-    from formic_world import Scenario, generate_scenario
+    from formic_runtime.episode import run_episode
+    from formic_runtime.registry import world_overrides
+    from formic_runtime.team import Team
+    from formic_runtime.threads import configure_threads
     from formic_world.render import render_frame, render_frames_to_file, save_png
 
-    from .summary import episode_summary
-
-    if scenario_file:
-        scenario = Scenario.load(scenario_file)
-    else:
-        config, seed = world_config_from(world_kw)
-        scenario = generate_scenario(config, seed)
-    try:  # the world the team needs (one-slot queues for csaf-ref), over the scenario's own
-        names = [name for name, _ in parse_team(policy, scenario.config.n_agents).groups]
-        overrides = world_overrides(names)
-        scenario = apply_world_overrides(scenario, names)
-    except ValueError as exc:
-        raise click.ClickException(str(exc)) from exc
+    scenario = scenario_from(scenario_file, world_kw)
+    configure_threads()
     frames = []
     view = open_live_view(view_port, wait=view_wait) if live_view else None
 
@@ -66,7 +47,8 @@ def sim(policy, model, greedy, scenario_file, out, gif, live_view, view_port, vi
         if view is not None:
             view.publish(w, final=w.done)
 
-    try:
+    try:  # in the world the team needs (one-slot queues for csaf-ref), over the scenario's own
+        overrides = world_overrides(Team.parse(policy, scenario.config.n_agents).names)
         result = run_episode(scenario, policy, model=model, greedy=greedy,
                              on_step=on_step if gif or view is not None else None)
     except (FileNotFoundError, ValueError) as exc:
@@ -74,6 +56,7 @@ def sim(policy, model, greedy, scenario_file, out, gif, live_view, view_port, vi
     finally:
         if view is not None:
             view.close()
+    scenario = result.world.scenario
     out_dir = Path(out)
     out_dir.mkdir(parents=True, exist_ok=True)
     picture = out_dir / "final.png"
@@ -82,15 +65,13 @@ def sim(policy, model, greedy, scenario_file, out, gif, live_view, view_port, vi
     if gif:
         files["animation"] = str(out_dir / "episode.gif")
         render_frames_to_file(frames, files["animation"])
-    summary = episode_summary(scenario, policy, result)
+    summary = result.summary(scenario, policy)
     if overrides:
         summary["world_overrides"] = overrides
     summary["files"] = files
     if as_json:
         emit_json(summary)
     else:
-        from .summary import print_episode_summary
-
         print_episode_summary(summary)
         if overrides:
             click.echo("world settings of this team: " + ", ".join(f"{k}={v!r}" for k, v in overrides.items()))
@@ -211,6 +192,38 @@ def bench_policy(network, batch, threads, episodes, as_json) -> None:
         return
     for key, value in result.items():
         click.echo(f"  {key}: {value:,.1f}" if isinstance(value, float) else f"  {key}: {value}")
+
+
+@bench.command("decide")
+@click.option("--size", default=128, show_default=True)
+@click.option("--teams", default="16,32,64,128", show_default=True)
+@click.option("--steps", default=50, show_default=True)
+@click.option("--seed", default=0, show_default=True)
+@click.option("--policy", default="formic", show_default=True, help="Team spec (the shipped model for formic).")
+@click.option("--model", type=click.Path(dir_okay=False), help="Checkpoint for the formic policy.")
+@click.option("--threads", default=1, show_default=True, help="Torch threads (0: torch's default pool).")
+@click.option("--json", "as_json", is_flag=True)
+def bench_decide(size, teams, steps, seed, policy, model, threads, as_json) -> None:
+    """In-process decision time per step (as `formic sim` runs) for each team size."""
+    from formic_runtime.episode import run_episode
+    from formic_runtime.threads import configure_threads
+    from formic_world import WorldConfig, generate_scenario
+
+    if threads:
+        configure_threads(threads)
+    results = []
+    for n in map(int, teams.split(",")):  # step 0 (warming caches up) left out
+        config = WorldConfig(height=size, width=size, n_agents=n, episode_steps=steps)
+        stats = run_episode(generate_scenario(config, seed), policy, model=model)
+        results.append({"agents": n, "decide_ms_per_step": float(stats.decision_seconds[1:].mean() * 1e3),
+                        "world_ms_per_step": float(stats.step_seconds[1:].mean() * 1e3)})
+    if as_json:
+        emit_json({"size": size, "steps": steps, "policy": policy, "threads": threads, "results": results})
+        return
+    click.echo(f"{policy}, world {size}x{size}, {steps} steps, {threads or 'default'} torch threads")
+    for r in results:
+        click.echo(f"  {r['agents']:4d} agents: decide {r['decide_ms_per_step']:7.2f} ms/step, "
+                   f"world {r['world_ms_per_step']:6.2f} ms/step")
 
 
 # --------------------------------------------------------------------------------- train

@@ -1,8 +1,6 @@
-"""World options shared by every command that builds a world (sim, run, eval, scenarios)."""
+"""Options shared by the commands: the world (sim, run, eval, scenarios) and the team (sim, run)."""
 
 from __future__ import annotations
-
-import functools
 
 import click
 
@@ -10,10 +8,20 @@ from formic_view import DEFAULT_HOST, DEFAULT_PORT
 from formic_world import WorldConfig
 
 
-def world_options(func):
-    """Add --agents --size --steps --seed --obstacles --resources --wipeouts --variant
-    --view-size --no-pheromones --timing."""
-    options = [
+def option_group(*options):
+    """A decorator adding these click options (in this order in ``--help``)."""
+
+    def decorate(func):
+        for option in reversed(options):
+            func = option(func)
+        return func
+
+    return decorate
+
+
+# --agents --size --steps --seed --obstacles --resources --wipeouts --variant --view-size
+# --no-pheromones --timing
+world_options = option_group(
         click.option("--agents", default=32, show_default=True, help="Team size."),
         click.option("--size", default=128, show_default=True, help="World side (square)."),
         click.option("--steps", default=512, show_default=True, help="Episode length."),
@@ -29,19 +37,27 @@ def world_options(func):
         click.option("--timing", type=click.Choice(["reference", "nominal"]), default="reference",
                      show_default=True, help="Service timing (SPEC §1): the reference code's (a load "
                      "takes 11 steps; a queue that moves up serves nobody that step) or exactly 1/rate."),
-    ]
-    for option in reversed(options):
-        func = option(func)
+)
 
-    @functools.wraps(func)
-    def wrapper(*args, **kwargs):
-        return func(*args, **kwargs)
-
-    return wrapper
+team_options = option_group(
+    click.option("--policy", default="formic", show_default=True,
+                 help="Policy for all agents, or a mix such as formic:0-31,csaf11:32-63."),
+    click.option("--model", type=click.Path(dir_okay=False), help="Checkpoint for the formic policy."),
+    click.option("--greedy", is_flag=True, help="Learned agents take the most likely action."),
+    click.option("--scenario", "scenario_file", type=click.Path(exists=True, dir_okay=False),
+                 help="Run a stored scenario (its configuration wins over world options)."),
+)
 
 
 WORLD_OPTION_NAMES = ("agents", "size", "steps", "seed", "obstacles", "resources", "wipeouts",
                       "variant", "view_size", "no_pheromones", "timing")
+
+
+def scenario_from(scenario_file: str | None, world_kw: dict):
+    """The stored scenario, or one generated from the world options."""
+    from formic_world import Scenario, generate_scenario
+
+    return Scenario.load(scenario_file) if scenario_file else generate_scenario(*world_config_from(world_kw))
 
 
 def world_config_from(kwargs: dict) -> tuple[WorldConfig, int]:
@@ -61,24 +77,18 @@ def world_config_from(kwargs: dict) -> tuple[WorldConfig, int]:
 
 
 def view_options(wait: bool = True):
-    """Add --view and --view-port (and --view-wait): the live view (formic_view) of a run."""
-
-    def decorate(func):
-        options = [
-            click.option("--view", "live_view", is_flag=True,
-                         help="Serve a live view of the run while it goes (Foxglove WebSocket; open it in "
-                              "Foxglove or Lichtblick)."),
-            click.option("--view-port", default=DEFAULT_PORT, show_default=True,
-                         help=f"Port of the live view (on {DEFAULT_HOST}; 0: any free port)."),
-        ]
-        if wait:
-            options.append(click.option("--view-wait", is_flag=True,
-                                        help="With --view: start stepping once a viewer has subscribed."))
-        for option in reversed(options):
-            func = option(func)
-        return func
-
-    return decorate
+    """--view and --view-port (and --view-wait): the live view (formic_view) of a run."""
+    options = [
+        click.option("--view", "live_view", is_flag=True,
+                     help="Serve a live view of the run while it goes (Foxglove WebSocket; open it in "
+                          "Foxglove or Lichtblick)."),
+        click.option("--view-port", default=DEFAULT_PORT, show_default=True,
+                     help=f"Port of the live view (on {DEFAULT_HOST}; 0: any free port)."),
+    ]
+    if wait:
+        options.append(click.option("--view-wait", is_flag=True,
+                                    help="With --view: start stepping once a viewer has subscribed."))
+    return option_group(*options)
 
 
 def open_live_view(port: int, wait: bool = False):

@@ -5,26 +5,29 @@ inside the commands)."""
 
 from __future__ import annotations
 
-import json
 import signal
 import sys
 
 import click
 
-from .options import view_options, world_config_from, world_options
+from .options import option_group, scenario_from, team_options, view_options, world_options
+from .summary import emit_json, print_episode_summary
 
 NAMESPACE_HELP = "ROS namespace of the ForMIC topics and nodes."
 DOMAIN_HELP = "ROS_DOMAIN_ID for this run (default: the environment's, else 0)."
 DEADLINE_HELP = "Lockstep: how long a step waits for the last action."
-
-
-def _echo_json(obj: dict) -> None:
-    click.echo(json.dumps(obj, default=float))
+# the world's: --namespace --domain-id --deadline-ms --startup-timeout --rate --viewer-every
+lockstep_options = option_group(
+    click.option("--namespace", default="/formic", show_default=True, help=NAMESPACE_HELP),
+    click.option("--domain-id", type=int, help=DOMAIN_HELP),
+    click.option("--deadline-ms", default=1000.0, show_default=True, help=DEADLINE_HELP),
+    click.option("--startup-timeout", default=60.0, show_default=True, help="Seconds step 0 waits for every agent."),
+    click.option("--rate", type=float, help="Free-running: steps per second, not waiting for agents."),
+    click.option("--viewer-every", default=10, show_default=True, help="Publish map and markers every k steps (0: never)."),
+)
 
 
 def _print_ros_summary(summary: dict) -> None:
-    from .summary import print_episode_summary
-
     print_episode_summary(summary)
     rejected = summary.get("rejected_actions", {})
     click.echo(
@@ -35,17 +38,8 @@ def _print_ros_summary(summary: dict) -> None:
     click.echo(f"state digest {summary['state_digest']}")
 
 
-def _load_scenario(scenario_file: str | None, world_kw: dict):
-    from formic_world import Scenario, generate_scenario
-
-    if scenario_file:
-        return Scenario.load(scenario_file)
-    config, seed = world_config_from(world_kw)
-    return generate_scenario(config, seed)
-
-
 def _parse_external(text: str | None) -> tuple[int, ...]:
-    from formic_ros.agent_host import parse_ids
+    from formic_runtime.team import parse_ids
 
     if not text:
         return ()
@@ -65,23 +59,13 @@ def _sigterm_as_interrupt() -> None:
 # ----------------------------------------------------------------------------------- run
 @click.command()
 @world_options
-@click.option("--policy", default="formic", show_default=True,
-              help="Policy for all agents, or a mix such as formic:0-31,csaf11:32-63 (planner: the planner node).")
-@click.option("--model", type=click.Path(dir_okay=False), help="Checkpoint for the formic policy.")
-@click.option("--greedy", is_flag=True, help="Learned agents take the most likely action.")
-@click.option("--scenario", "scenario_file", type=click.Path(exists=True, dir_okay=False),
-              help="Run a stored scenario (its configuration wins over world options).")
+@team_options
 @click.option("--hosts", default=1, show_default=True, help="Agent host processes to split the team over.")
 @click.option("--transport", type=click.Choice(["per-agent", "batched"]), default="per-agent", show_default=True,
               help="One node and topic pair per agent, or one batched topic pair per host.")
 @click.option("--external", help="Agents driven by your own node on their per-agent topics, e.g. 5 or 0-3.")
 @click.option("--record", type=click.Path(file_okay=False), help="Record every topic to this rosbag2 (MCAP) directory.")
-@click.option("--namespace", default="/formic", show_default=True, help=NAMESPACE_HELP)
-@click.option("--domain-id", type=int, help=DOMAIN_HELP)
-@click.option("--deadline-ms", default=1000.0, show_default=True, help=DEADLINE_HELP)
-@click.option("--startup-timeout", default=60.0, show_default=True, help="Seconds step 0 waits for every agent.")
-@click.option("--rate", type=float, help="Free-running: steps per second, not waiting for agents.")
-@click.option("--viewer-every", default=10, show_default=True, help="Publish map and markers every k steps (0: never).")
+@lockstep_options
 @click.option("--log-dir", type=click.Path(file_okay=False), help="Write each process's log here instead of stderr.")
 @click.option("--timeout", type=float, help="Give up after this many seconds.")
 @view_options(wait=False)
@@ -93,7 +77,7 @@ def run(policy, model, greedy, scenario_file, hosts, transport, external, record
     from formic_ros.launcher import RunOptions, launch
 
     _sigterm_as_interrupt()
-    scenario = _load_scenario(scenario_file, world_kw)
+    scenario = scenario_from(scenario_file, world_kw)
     options = RunOptions(
         scenario=scenario, policy=policy, model=model, greedy=greedy, hosts=hosts, transport=transport,
         external=_parse_external(external), record=record, namespace=namespace, domain_id=domain_id,
@@ -113,7 +97,7 @@ def run(policy, model, greedy, scenario_file, hosts, transport, external, record
     except (RuntimeError, ValueError, FileNotFoundError) as exc:
         raise click.ClickException(str(exc)) from exc
     if as_json:
-        _echo_json(summary)
+        emit_json(summary)
     else:
         _print_ros_summary(summary)
         click.echo(f"{summary['hosts']} host process(es), {summary['transport']} transport"
@@ -126,12 +110,7 @@ def run(policy, model, greedy, scenario_file, hosts, transport, external, record
 @click.option("--scenario", "scenario_file", type=click.Path(exists=True, dir_okay=False),
               help="Serve a stored scenario (its configuration wins over world options).")
 @click.option("--policy-label", default="", help="Which policies drive the team (recorded in the scenario message).")
-@click.option("--namespace", default="/formic", show_default=True, help=NAMESPACE_HELP)
-@click.option("--domain-id", type=int, help=DOMAIN_HELP)
-@click.option("--deadline-ms", default=1000.0, show_default=True, help=DEADLINE_HELP)
-@click.option("--startup-timeout", default=60.0, show_default=True, help="Seconds step 0 waits for every agent.")
-@click.option("--rate", type=float, help="Free-running: steps per second, not waiting for agents.")
-@click.option("--viewer-every", default=10, show_default=True, help="Publish map and markers every k steps (0: never).")
+@lockstep_options
 @click.option("--dt", default=0.1, show_default=True, help="Simulated seconds per step (/clock).")
 @click.option("--training-masks", is_flag=True, help="Fill the training-filter masks of ObservationBatch.")
 @click.option("--observation-encoding", type=click.Choice(["compact", "float32"]), default="compact", show_default=True,
@@ -173,10 +152,10 @@ def world(scenario_file, policy_label, namespace, domain_id, deadline_ms, startu
     try:
         if train_config:
             serve_training_world(cfg, episodes, options, first_episode=first_episode, domain_id=domain_id,
-                                 on_episode=_echo_json if as_json else _print_training_episode)
+                                 on_episode=emit_json if as_json else _print_training_episode)
         else:
-            serve_world(_load_scenario(scenario_file, world_kw), options, domain_id=domain_id,
-                        on_summary=_echo_json if as_json else _print_ros_summary, stay=stay)
+            serve_world(scenario_from(scenario_file, world_kw), options, domain_id=domain_id,
+                        on_summary=emit_json if as_json else _print_ros_summary, stay=stay)
     except KeyboardInterrupt:
         sys.exit(130)
 
@@ -212,7 +191,8 @@ def _print_training_episode(summary: dict) -> None:
 def agents(ids, policy, model, greedy, transport, namespace, domain_id, name, threads, once, train_config,
            switch_weights, episodes, first_episode) -> None:
     """An agent host: many agents (each its own node by default) in one process."""
-    from formic_ros.agent_host import parse_ids, serve_agents
+    from formic_ros.agent_host import serve_agents
+    from formic_runtime.team import parse_ids
 
     try:
         agent_ids = parse_ids(ids)
@@ -280,7 +260,7 @@ def train_ros(preset, train_config, overrides, run_dir, episodes, fresh, switch_
     except (RuntimeError, ValueError, TypeError, FileNotFoundError) as exc:
         raise click.ClickException(str(exc)) from exc
     if as_json:
-        _echo_json(result)
+        emit_json(result)
         return
     trainer = result["trainer"]
     click.echo(f"trained {len(result['episodes'])} episodes from episode {result['first_episode']}: weights version "
@@ -327,7 +307,7 @@ def bench_ros(teams, transports, steps, size, repeats, domain_id, as_json) -> No
                            f"(world process {r['world_cpu_ms_per_step']:.2f} ms CPU a step, of which the core "
                            f"{r['world_step_ms']:.2f}; missed {r['missed_actions']})")
     if as_json:
-        _echo_json({"size": size, "steps": steps, "results": results})
+        emit_json({"size": size, "steps": steps, "results": results})
 
 
 def register(cli: click.Group) -> None:

@@ -3,20 +3,16 @@ ROS and torch are imported inside the commands, so ``formic --help`` stays insta
 
 from __future__ import annotations
 
-import json
 import sys
 from pathlib import Path
 
 import click
 
 from .options import open_live_view, view_options
+from .summary import emit_json
 
 NAMESPACE_HELP = "ROS namespace of the ForMIC topics and nodes."
 DOMAIN_HELP = "ROS_DOMAIN_ID for this process (default: the environment's)."
-
-
-def _emit(obj: dict) -> None:
-    click.echo(json.dumps(obj, default=str))
 
 
 def _log(text: str) -> None:
@@ -56,7 +52,7 @@ def record_command(out, topics, namespace, domain_id, model, duration, chunk_kb,
     except ValueError as exc:
         raise click.ClickException(str(exc)) from exc
     if as_json:
-        _emit(result)
+        emit_json(result)
         return
     click.echo(f"wrote {result['recording']}: {result['messages']} messages on {len(result['topics'])} topics")
     for topic, count in sorted(result["topics"].items()):
@@ -98,7 +94,7 @@ def replay_command(recording, verify, republish, repair, live_view, view_port, v
             finally:
                 view.close()
             if as_json:
-                _emit({"recording": str(recording), "steps": steps, "view": view.url})
+                emit_json({"recording": str(recording), "steps": steps, "view": view.url})
             else:
                 click.echo(f"showed {steps} steps of {recording} on {view.url}")
         elif repair:
@@ -106,7 +102,7 @@ def replay_command(recording, verify, republish, repair, live_view, view_port, v
             result = {"repaired": report.repaired, "messages": report.messages,
                       "kept": str(report.kept) if report.kept else None, "note": report.note}
             if as_json:
-                _emit(result)
+                emit_json(result)
             else:
                 click.echo(report.note)
         elif verify:
@@ -114,7 +110,7 @@ def replay_command(recording, verify, republish, repair, live_view, view_port, v
 
             report = verify_recording(recording)
             if as_json:
-                _emit(report.to_dict())
+                emit_json(report.to_dict())
             else:
                 click.echo(report.summary())
             if not report.ok:
@@ -124,14 +120,14 @@ def replay_command(recording, verify, republish, repair, live_view, view_port, v
 
             result = play(recording, rate=rate, domain_id=domain_id, topics=_split(topics), wait_s=wait, log=_log)
             if as_json:
-                _emit(result)
+                emit_json(result)
             else:
                 click.echo(f"republished {result['messages']} messages on {len(result['topics'])} topics "
                            f"in {result['seconds']:.1f} s")
         else:
             rec = Recording(recording)
             if as_json:
-                _emit({"file": str(rec.mcap_path), "complete": rec.complete, "streamed": rec.streamed,
+                emit_json({"file": str(rec.mcap_path), "complete": rec.complete, "streamed": rec.streamed,
                        "problem": rec.problem, "run_info": rec.run_info,
                        "topics": {t: {"type": i.msgtype, "messages": i.count} for t, i in rec.topics.items()}})
                 return
@@ -186,7 +182,7 @@ def trainer_command(preset, run_dir, fresh, train_config, overrides, max_updates
     except (TypeError, ValueError) as exc:
         raise click.ClickException(str(exc)) from exc
     if as_json:
-        _emit(result)
+        emit_json(result)
     else:
         click.echo(f"trainer stopped at weights version {result['version']} ({result['updates']} updates here, "
                    f"{result['dropped']} rollouts dropped); checkpoint in {run_dir}/latest.pt")

@@ -1,36 +1,29 @@
-"""Readable episode summaries: food over time and what each agent did."""
+"""Readable episode summaries (built by ``formic_runtime.episode.EpisodeStats.summary``):
+food over time and what each agent did."""
 
 from __future__ import annotations
 
+import json
+
 import click
-import numpy as np
 
 
-def episode_summary(scenario, policy: str, result) -> dict:
-    cfg = scenario.config
-    curve = result.food_curve
-    marks = sorted({min(len(curve), m) for m in (64, 128, 256, 384, 512, 768, 1024, len(curve))})
-    return {
-        "policy": policy if isinstance(policy, str) else policy.describe(),
-        "seed": scenario.seed,
-        "size": [cfg.height, cfg.width],
-        "agents": cfg.n_agents,
-        "resources": len(scenario.resources),
-        "steps": len(curve),
-        "food": float(result.food),
-        "food_over_time": {str(m): float(curve[m - 1]) for m in marks if m > 0},
-        "per_agent": {
-            "collected": result.collected.round(3).tolist(),
-            "delivered": result.delivered.round(3).tolist(),
-            "queued_steps": result.queued_steps.tolist(),
-        },
-        "step_ms_mean": result.step_ms_mean,
-        "world_step_ms_mean": float(result.step_seconds.mean() * 1e3),
-        "state_digest": result.world.state_digest(),
-    }
+def emit_json(obj: dict) -> None:
+    """The ``--json`` output of every command: one JSON object on stdout (numbers that JSON
+    does not know, such as NumPy's, as floats; anything else, such as paths, as text)."""
+    click.echo(json.dumps(obj, default=_plain))
+
+
+def _plain(value) -> float | str:
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return str(value)
 
 
 def print_episode_summary(summary: dict) -> None:
+    import numpy as np
+
     h, w = summary["size"]
     click.echo(
         f"{summary['policy']} | {h}x{w} world, {summary['agents']} agents, "

@@ -2,7 +2,7 @@
 
 A cell's ``food_std`` is the sample standard deviation over its scenarios (ddof=1; 0 for a
 single scenario). Per-step time is the team's decision time (all agents choosing actions,
-``EpisodeResult.decision_seconds``), averaged over steps then scenarios; per agent it is that
+``EpisodeStats.decision_seconds``), averaged over steps then scenarios; per agent it is that
 divided by the team size.
 """
 
@@ -10,12 +10,12 @@ from __future__ import annotations
 
 import csv
 import json
-import os
-import tempfile
 from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
+
+from formic_world.files import atomic_open
 
 from .paper import paper_food
 
@@ -109,7 +109,7 @@ def public_cell(cell: dict) -> dict:
 
 def write_csv(path: Path, rows: list[dict], columns: Iterable[str]) -> None:
     columns = list(columns)
-    with _atomic(path) as handle:
+    with atomic_open(path, newline="") as handle:
         writer = csv.DictWriter(handle, fieldnames=columns, extrasaction="ignore")
         writer.writeheader()
         for row in rows:
@@ -118,7 +118,7 @@ def write_csv(path: Path, rows: list[dict], columns: Iterable[str]) -> None:
 
 def write_curves_csv(path: Path, cells: list[dict]) -> None:
     """Food versus time: one row per cell and step (mean and std over scenarios)."""
-    with _atomic(path) as handle:
+    with atomic_open(path, newline="") as handle:
         writer = csv.writer(handle)
         writer.writerow(CELL_FIELDS + ("step", "food_mean", "food_std"))
         for cell in cells:
@@ -128,7 +128,7 @@ def write_curves_csv(path: Path, cells: list[dict]) -> None:
 
 
 def write_json(path: Path, obj: dict) -> None:
-    with _atomic(path) as handle:
+    with atomic_open(path, newline="") as handle:
         json.dump(obj, handle, indent=1)
 
 
@@ -148,23 +148,3 @@ def write_results(out: Path, records: list[dict], cells: list[dict], run: dict) 
     write_json(files["results_json"], {"run": run, "cells": cells, "episodes": rows})
     return {k: str(v) for k, v in files.items()}
 
-
-class _atomic:
-    """Write a text file through a temporary one, so readers never see half a file."""
-
-    def __init__(self, path: Path):
-        self.path = Path(path)
-
-    def __enter__(self):
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        fd, self.tmp = tempfile.mkstemp(dir=self.path.parent, prefix=f".{self.path.name}.", suffix=".tmp")
-        self.handle = os.fdopen(fd, "w", newline="")
-        return self.handle
-
-    def __exit__(self, exc_type, exc, tb):
-        self.handle.close()
-        if exc_type is None:
-            os.replace(self.tmp, self.path)
-        else:
-            os.unlink(self.tmp)
-        return False

@@ -21,6 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
+from formic_runtime.threads import configure_threads
+
 from .matrix import PolicyOptions, Setting, StoredScenario, Task, plan_tasks
 
 
@@ -79,8 +81,9 @@ _LEARNED_CACHE: dict[tuple, object] = {}
 
 def run_task(task: Task) -> dict:
     """Run one episode and return its log record (runs in a worker process)."""
-    from formic_agent.episode import run_episode
-    from formic_agent.registry import apply_world_overrides, make_policy, world_overrides
+    from formic_runtime.episode import run_episode
+    from formic_runtime.registry import apply_world_overrides, make_policy, world_overrides
+    from formic_runtime.team import Team
     from formic_world import Scenario
 
     stored = task.scenario
@@ -100,10 +103,9 @@ def run_task(task: Task) -> dict:
         else:
             policy = make_policy(task.algorithm)
         start = time.perf_counter()
-        result = run_episode(
-            scenario, task.algorithm, steps=setting.steps,
-            policies=[(policy, np.arange(scenario.config.n_agents))],
-        )
+        team = Team(((task.algorithm, tuple(range(scenario.config.n_agents))),))
+        team.members = [(policy, np.arange(scenario.config.n_agents))]
+        result = run_episode(scenario, team, steps=setting.steps)
         wall = time.perf_counter() - start
     except Exception as exc:
         frame = traceback.extract_tb(exc.__traceback__)[-1]
@@ -139,8 +141,7 @@ def run_task(task: Task) -> dict:
 def _init_worker(threads: int) -> None:
     # Ctrl-C goes to the whole process group: let the parent alone handle it.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    os.environ["OMP_NUM_THREADS"] = str(threads)
-    os.environ["MKL_NUM_THREADS"] = str(threads)
+    configure_threads(threads)
 
 
 @dataclass
@@ -194,6 +195,7 @@ def run_tasks(
 
 def _results(pending: list[Task], workers: int) -> Iterator[dict]:
     if workers <= 1 or len(pending) <= 1:
+        configure_threads()
         for task in pending:
             yield run_task(task)
         return

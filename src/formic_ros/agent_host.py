@@ -35,8 +35,10 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.type_description_service import START_TYPE_DESCRIPTION_SERVICE_PARAM
 
-from formic_agent.policy import AgentBatch, CentralPolicy, Policy
-from formic_agent.registry import POLICY_NAMES, make_policy, world_overrides
+from formic_agent.policy import AgentBatch, CentralPolicy
+from formic_runtime.registry import world_overrides
+from formic_runtime.team import Team, format_ids
+from formic_runtime.threads import configure_threads
 from formic_world import Scenario
 
 from . import convert, qos
@@ -45,61 +47,6 @@ if TYPE_CHECKING:
     from formic_trainer.train import TrainConfig
 
 TRANSPORTS = ("per-agent", "batched")
-
-
-def parse_ids(text: str) -> list[int]:
-    """``0-31``, ``3``, ``0-3+8-11`` or ``0,2,5`` -> sorted agent ids."""
-    ids: set[int] = set()
-    for chunk in text.replace("+", ",").split(","):
-        chunk = chunk.strip()
-        if not chunk:
-            continue
-        lo, _, hi = chunk.partition("-")
-        try:
-            a, b = int(lo), int(hi) if hi else int(lo)
-        except ValueError as exc:
-            raise ValueError(f"bad agent range {chunk!r}") from exc
-        if not 0 <= a <= b:
-            raise ValueError(f"bad agent range {chunk!r}")
-        ids.update(range(a, b + 1))
-    if not ids:
-        raise ValueError(f"no agent ids in {text!r}")
-    return sorted(ids)
-
-
-def policy_groups(spec: str, agent_ids: list[int]) -> list[tuple[str, np.ndarray]]:
-    """Which policy drives each of these agents under a team spec such as
-    ``formic:0-15,csaf11:16-31`` (global ids, as ``formic run --policy``); a part without a
-    range drives every agent no other part names."""
-    owner: dict[int, str] = {}
-    default = None
-    for part in (p.strip() for p in spec.split(",") if p.strip()):
-        name, _, ranges = part.partition(":")
-        if name not in POLICY_NAMES:
-            raise ValueError(f"unknown policy {name!r}; choose from {', '.join(POLICY_NAMES)}")
-        if name == "planner":
-            raise ValueError("the centralized planner is a node of its own: run `formic planner`")
-        if not ranges:
-            default = name
-            continue
-        for a in parse_ids(ranges):
-            owner.setdefault(a, name)
-    groups: dict[str, list[int]] = {}
-    for a in agent_ids:
-        name = owner.get(a, default)
-        if name is None:
-            raise ValueError(f"agent {a} has no policy in {spec!r}")
-        groups.setdefault(name, []).append(a)
-    return [(name, np.array(ids, dtype=np.int64)) for name, ids in groups.items()]
-
-
-def select(batch: AgentBatch, rows: np.ndarray) -> AgentBatch:
-    """Rows of a batch (one policy group's agents)."""
-    return AgentBatch(
-        step=batch.step, agent_ids=batch.agent_ids[rows], observations=batch.observations[rows],
-        action_mask=batch.action_mask[rows], positions=batch.positions[rows], loads=batch.loads[rows],
-        queued=batch.queued[rows], world_shape=batch.world_shape,
-    )
 
 
 def read_scenario(msg: ScenarioDescription, log) -> Scenario | None:
@@ -138,20 +85,12 @@ class AgentHost:
         if transport not in TRANSPORTS:
             raise ValueError(f"unknown transport {transport!r}; choose from {', '.join(TRANSPORTS)}")
         self.ids = np.array(sorted(agent_ids), dtype=np.int64)
-        self.groups: list[tuple[Policy, np.ndarray]] = []
-        groups = policy_groups(spec, list(self.ids))
-        self.world_needs = world_overrides([policy_name for policy_name, _ in groups])  # csaf-ref: one-slot queues
-        if any(policy_name == "formic" for policy_name, _ in groups):
-            import torch
-
-            # A host's batch is small: more threads only contend with the DDS threads and
-            # with other processes (16 agents on a busy 2-core machine: 1.7 ms a step, not 280).
-            torch.set_num_threads(torch_threads)
-        for policy_name, ids in groups:
-            policy = make_policy(policy_name, model=model, greedy=greedy)
+        self.team = Team.for_agents(spec, self.ids.tolist())
+        self.world_needs = world_overrides(self.team.names)  # csaf-ref: one-slot queues
+        configure_threads(torch_threads)
+        for policy, _ in self.team.build(model=model, greedy=greedy).members:
             if isinstance(policy, CentralPolicy):
-                raise ValueError(f"{policy_name} needs the full world: it runs as its own node")
-            self.groups.append((policy, ids))
+                raise ValueError(f"{policy.name} needs the full world: it runs as its own node")
         self.transport = transport
         self.control = rclpy.create_node(name or f"agent_host_{os.getpid()}", namespace=namespace)
         self.log = self.control.get_logger()
@@ -187,8 +126,7 @@ class AgentHost:
         self.wiped_at = -1
 
     def _start_episode(self) -> None:
-        for policy, _ in self.groups:
-            policy.reset(self.n_agents, self.seed)
+        self.team.reset(self.n_agents, self.seed)
         self._reset_steps()
         self.finished = False
         self.episodes += 1
@@ -210,7 +148,7 @@ class AgentHost:
             self.log.error(f"this host's policies need a world with {wrong}, but the world serves "
                            f"{ {k: getattr(scenario.config, k) for k in wrong} }: `formic run` sets them")
         self._start_episode()
-        self.log.info(f"scenario seed {self.seed}: driving agents {_describe(self.ids)} ({self.transport})")
+        self.log.info(f"scenario seed {self.seed}: driving agents {format_ids(self.ids.tolist())} ({self.transport})")
 
     def _ready(self, step: int, done: bool) -> bool:
         """Whether an observation of ``step`` should be answered (handles episode ends and a
@@ -260,17 +198,9 @@ class AgentHost:
     def _answer(self, batch: AgentBatch) -> None:
         step = batch.step
         if step in self.wipeout_starts and self.wiped_at != step:
-            for policy, _ in self.groups:
-                if getattr(policy, "uses_world_wipeouts", False):
-                    policy.wipe()
+            self.team.wipe()
             self.wiped_at = step
-        actions = np.zeros(len(batch), dtype=np.int64)
-        for policy, ids in self.groups:
-            rows = np.flatnonzero(np.isin(batch.agent_ids, ids))
-            if len(rows) == len(batch):
-                actions[:] = policy.act(batch)  # one policy drives every row: no copy
-            elif len(rows):
-                actions[rows] = policy.act(select(batch, rows))
+        actions = self.team.act(batch)
         self.answered_step, self.answer_ids, self.answer = step, batch.agent_ids, actions
         self.collecting, self.gathered = -1, {}
         if self.transport == "batched":
@@ -284,10 +214,6 @@ class AgentHost:
         if len(row):
             action = int(self.answer[row[0]])
             self.action_pubs[agent].publish(AgentAction(step=self.answered_step, agent_id=agent, action=action))
-
-
-def _describe(ids: np.ndarray) -> str:
-    return f"{ids[0]}-{ids[-1]}" if len(ids) == ids[-1] - ids[0] + 1 else ",".join(map(str, ids.tolist()))
 
 
 class WorldWatch:
@@ -508,25 +434,13 @@ def serve_learning_agents(
         return host.episodes
 
 
-def serve_agents(
-    agent_ids: list[int],
-    spec: str,
-    model: str | None = None,
-    greedy: bool = False,
-    transport: str = "per-agent",
-    namespace: str = qos.DEFAULT_NAMESPACE,
-    name: str | None = None,
-    once: bool = False,
-    domain_id: int | None = None,
-    torch_threads: int = 1,
-) -> int:
-    """Host these agents until interrupted (or, with ``once``, until an episode ends);
-    returns the number of episodes played."""
+def serve_agents(agent_ids: list[int], spec: str, once: bool = False, domain_id: int | None = None, **settings) -> int:
+    """Host these agents (``settings``: :class:`AgentHost`'s) until interrupted (or, with
+    ``once``, until an episode ends); returns the number of episodes played."""
     from .env import ros_session
 
     with ros_session(domain_id) as executor:
-        host = AgentHost(agent_ids, spec, model=model, greedy=greedy, transport=transport,
-                         namespace=namespace, name=name, torch_threads=torch_threads)
+        host = AgentHost(agent_ids, spec, **settings)
         for node in host.nodes:
             executor.add_node(node)
         watch = WorldWatch(host.control)

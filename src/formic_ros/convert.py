@@ -29,12 +29,12 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from formic_agent.policy import AgentBatch
 from formic_world import Scenario, World
-from formic_world.geometry import CACHE, RESOURCE
+from formic_world.geometry import CACHE, N_ACTIONS, RESOURCE
 
 from .qos import NO_ACTION_WIRE
 
 SCENARIO_FORMAT_VERSION = 1
-ACTION_COUNT = 5
+ACTION_COUNT = N_ACTIONS  # the learning host reads it
 
 
 # ----------------------------------------------------------------------------- arrays
@@ -214,7 +214,7 @@ def batch_from_observation_batch(msg: ObservationBatch, rows: np.ndarray | None 
         step=msg.step,
         agent_ids=ids[rows],
         observations=decode_observations(msg)[rows],
-        action_mask=read(msg.action_masks, np.uint8).reshape(n, ACTION_COUNT)[rows].astype(bool),
+        action_mask=read(msg.action_masks, np.uint8).reshape(n, N_ACTIONS)[rows].astype(bool),
         positions=np.stack([read(msg.rows, np.int32), read(msg.cols, np.int32)], axis=1)[rows].astype(np.int64),
         loads=read(msg.loads, np.float32)[rows].astype(np.float64),
         queued=read(msg.queued, np.uint8)[rows].astype(bool),

@@ -29,7 +29,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from formic_agent.registry import DEFAULT_MODEL, TeamAssignment, apply_world_overrides, parse_team
+from formic_runtime.registry import DEFAULT_MODEL, apply_world_overrides
+from formic_runtime.team import Team
 from formic_world import Scenario
 
 from . import qos
@@ -38,8 +39,6 @@ from .env import check_domain_id, ros_environment
 if TYPE_CHECKING:
     from formic_trainer.train import TrainConfig
 
-# One team's marks live in one process.
-SHARED_MARK_POLICIES = ("csaf", "csaf11", "csaf-ref", "csaf11-ref", "cardinality")
 STOP_GRACE_S = (5.0, 3.0)  # after SIGINT, after SIGTERM; then SIGKILL
 RECORDER_GRACE_S = (20.0, 5.0)  # the recorder closes its file on SIGINT
 DEFAULT_MAX_LAG = 4  # the trainer node's (formic_ros.trainer_node imports torch)
@@ -98,27 +97,6 @@ def spawn(name: str, args: list[str], env: dict[str, str], stdout=None, stderr=N
     return Child(name, process)
 
 
-def split_team(team: TeamAssignment, hosts: int) -> list[list[int]]:
-    """Agents of each host: a team of a shared-mark baseline stays whole in one host; the
-    other agents are dealt in contiguous chunks so hosts end up about equally loaded."""
-    buckets: list[list[int]] = [[] for _ in range(max(1, hosts))]
-    splittable: list[int] = []
-    for name, ids in team.groups:
-        if name in SHARED_MARK_POLICIES:
-            min(buckets, key=len).extend(ids)
-        else:
-            splittable.extend(ids)
-    splittable.sort()
-    target = math.ceil((sum(map(len, buckets)) + len(splittable)) / len(buckets))
-    start = 0
-    for bucket in buckets:
-        take = max(0, target - len(bucket))
-        bucket.extend(splittable[start:start + take])
-        start += take
-    buckets[-1].extend(splittable[start:])
-    return [sorted(b) for b in buckets if b]
-
-
 def ids_text(ids: list[int]) -> str:
     return ",".join(map(str, ids))
 
@@ -162,19 +140,19 @@ def world_command(opts: RunOptions, scenario_file: Path, label: str) -> list[str
     return args
 
 
-def recorder_command(opts: RunOptions, team: TeamAssignment) -> list[str]:
+def recorder_command(opts: RunOptions, team: Team) -> list[str]:
     args = ["record", "--out", opts.record, "--namespace", opts.namespace]
-    if "formic" in dict(team.groups):
+    if "formic" in team.names:
         args += ["--model", str(opts.model or DEFAULT_MODEL)]
     return args
 
 
-def driver_commands(opts: RunOptions, team: TeamAssignment) -> dict[str, list[str]]:
+def driver_commands(opts: RunOptions, team: Team) -> dict[str, list[str]]:
     """The processes that answer the world: the planner node, or the agent hosts."""
-    if "planner" in dict(team.groups):
+    if "planner" in team.names:
         return {"planner": ["planner", "--namespace", opts.namespace, "--once"]}
     commands = {}
-    for i, ids in enumerate(split_team(team, opts.hosts)):
+    for i, ids in enumerate(team.split(opts.hosts)):
         args = ["agents", "--ids", ids_text(ids), "--policy", opts.policy, "--transport", opts.transport,
                 "--namespace", opts.namespace, "--name", f"agent_host_{i}", "--once"]
         if opts.model:
@@ -215,11 +193,11 @@ def child_output(log_dir, name: str, files: list):
 def launch(opts: RunOptions) -> dict:
     """Play one episode across processes; returns the world's summary (plus launch details).
     Raises RuntimeError when the world fails; children are stopped and reaped in any case."""
-    team = parse_team(opts.policy, opts.scenario.config.n_agents, external=opts.external)
+    team = Team.parse(opts.policy, opts.scenario.config.n_agents, external=opts.external)
     # The world the team needs (one-slot queues for csaf-ref): the world node serves, and the
     # recorder records, this scenario, so a replay re-simulates the same world.
-    scenario = apply_world_overrides(opts.scenario, [name for name, _ in team.groups])
-    if "planner" in dict(team.groups) and opts.external:
+    scenario = apply_world_overrides(opts.scenario, team.names)
+    if "planner" in team.names and opts.external:
         raise ValueError("the planner commands every agent; it cannot leave some to --external")
     check_domain_id(opts.domain_id)
     env = ros_environment(opts.domain_id)

@@ -15,7 +15,8 @@ import numpy as np
 from formic_interfaces.msg import ActionBatch, ScenarioDescription, WorldState
 from rclpy.node import Node
 
-from formic_agent.registry import make_policy
+from formic_runtime.registry import make_policy
+from formic_runtime.threads import configure_threads
 from formic_world import World
 
 from . import convert, qos
@@ -29,6 +30,7 @@ class PlannerNode(Node):
 
     def __init__(self, namespace: str = qos.DEFAULT_NAMESPACE):
         super().__init__("planner", namespace=namespace)
+        configure_threads()
         self.planner = make_policy("planner")
         self.actions_pub = self.create_publisher(ActionBatch, qos.ACTIONS, qos.STREAM)
         self.create_subscription(ScenarioDescription, qos.SCENARIO, self._on_scenario, qos.LATCHED)

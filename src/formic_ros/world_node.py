@@ -39,7 +39,7 @@ from rclpy.duration import Duration
 from rclpy.node import Node
 from std_msgs.msg import Float64, String
 
-from formic_agent.episode import EpisodeResult
+from formic_runtime.episode import EpisodeStats
 from formic_world import NO_ACTION, Scenario, StepResult, World
 
 from . import convert, qos
@@ -162,35 +162,6 @@ class ActionInbox:
         self.duplicates += int((~fresh).sum())
         self.actions[ids[fresh]] = acts[fresh]
         self.received[ids[fresh]] = True
-
-
-class EpisodeBook:
-    """The same per-step bookkeeping as ``formic_agent.episode.run_episode``, so a ROS run's
-    summary reads exactly like ``formic sim``'s."""
-
-    def __init__(self, n_agents: int, horizon: int):
-        self.food_curve = np.zeros(horizon)
-        self.collected, self.delivered = np.zeros(n_agents), np.zeros(n_agents)
-        self.moves = np.zeros(n_agents, dtype=np.int64)
-        self.queued_steps = np.zeros(n_agents, dtype=np.int64)
-        self.wait_s, self.step_s = np.zeros(horizon), np.zeros(horizon)
-
-    def record(self, t: int, world: World, loads_before: np.ndarray, queued_before: np.ndarray,
-               wait_s: float, step_s: float) -> None:
-        change = world.loads - loads_before
-        self.collected += np.clip(change, 0, None)
-        self.delivered += np.clip(-change, 0, None)
-        self.queued_steps += queued_before
-        self.moves += ~queued_before
-        self.food_curve[t] = world.score
-        self.wait_s[t], self.step_s[t] = wait_s, step_s
-
-    def result(self, world: World) -> EpisodeResult:
-        return EpisodeResult(
-            food=world.score, food_curve=self.food_curve, collected=self.collected,
-            delivered=self.delivered, moves=self.moves, queued_steps=self.queued_steps,
-            decision_seconds=self.wait_s, step_seconds=self.step_s, world=world,
-        )
 
 
 class WorldNode(Node):
@@ -373,8 +344,8 @@ class WorldNode(Node):
         opts, world, cfg = self.options, self.world, self.scenario.config
         horizon = cfg.episode_steps
         self._wait_for_subscribers(executor)
-        result = world.reset(self.scenario)
-        book = EpisodeBook(cfg.n_agents, horizon)
+        result = world.last_result if world.t == 0 else world.reset(self.scenario)  # a new world is reset
+        book = EpisodeStats(cfg.n_agents, horizon)
         self._publish_state()
         started = tick = time.monotonic()
         clock = {"stepping_from": started, "cpu_from": time.process_time()}
@@ -418,7 +389,7 @@ class WorldNode(Node):
         )
         return summary
 
-    def _finish_step(self, book: EpisodeBook, t: int, actions: np.ndarray, loads_before: np.ndarray,
+    def _finish_step(self, book: EpisodeStats, t: int, actions: np.ndarray, loads_before: np.ndarray,
                      queued_before: np.ndarray, wait_s: float, step_s: float, final: bool) -> None:
         """Step ``t``'s bookkeeping and messages (applied actions, state, viewers). The world
         has not moved since step ``t``, so this runs after the next observations went out,
@@ -430,13 +401,11 @@ class WorldNode(Node):
         if self.view is not None:
             self.view.publish(self.world, final=final)
 
-    def _summary(self, book: EpisodeBook, clock: dict) -> dict:
+    def _summary(self, book: EpisodeStats, clock: dict) -> dict:
         """``formic sim``'s summary plus what the distributed run adds."""
-        from formic_cli.summary import episode_summary
-
         steps = self.scenario.config.episode_steps - 1  # timed steps (after step 0)
         stepping_s = clock["ended"] - clock["stepping_from"]
-        summary = episode_summary(self.scenario, self.options.policy_label or "unknown", book.result(self.world))
+        summary = book.summary(self.scenario, self.options.policy_label or "unknown")
         summary.update(
             food_curve=book.food_curve.tolist(),
             missed_actions=int(self.missed.sum()),

@@ -8,7 +8,7 @@ import time
 
 import torch
 
-from formic_agent.network import NETWORK_PRESETS, ForMICNet
+from formic_agent.network import N_EXTRA_INPUTS, NETWORK_PRESETS, ForMICNet
 
 from .train import Trainer, make_config
 
@@ -17,7 +17,7 @@ def bench_policy(network: str, batch: int, threads: int, episodes: int = 1) -> d
     torch.set_num_threads(threads)
     net = ForMICNet(NETWORK_PRESETS[network]).eval()
     obs = torch.rand(1, batch, 8, 11, 11)
-    extra = torch.zeros(1, batch, 3)
+    extra = torch.zeros(1, batch, N_EXTRA_INPUTS)
     state = net.initial_state(batch)
     with torch.no_grad():
         for _ in range(5):

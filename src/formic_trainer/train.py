@@ -29,7 +29,7 @@ import torch.nn.functional as F
 from formic_agent.checkpoint import load_network, read_checkpoint, save_checkpoint
 from formic_agent.network import N_EXTRA_INPUTS, NETWORK_PRESETS, ForMICNet, nest_features
 from formic_agent.policy import AgentBatch
-from formic_agent.registry import make_policy
+from formic_runtime.registry import make_policy
 from formic_world import REWARD_PRESETS, Scenario, World, WorldConfig, generate_scenario
 from formic_world.pheromones import curriculum_intensities
 

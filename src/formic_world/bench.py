@@ -24,7 +24,7 @@ def bench_world(size: int, agents: int, steps: int = 512, seed: int = 0) -> dict
     config = WorldConfig(height=size, width=size, n_agents=agents, episode_steps=steps)
     world = World(generate_scenario(config, seed))
     rng = np.random.default_rng(seed)
-    result = world.reset(world.scenario)
+    result = world.last_result
     start = time.perf_counter()
     while not world.done:
         result = world.step(random_valid_actions(result.action_mask, rng))

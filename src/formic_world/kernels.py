@@ -9,18 +9,20 @@ every rule's meaning is documented in ``world.py``.
 from __future__ import annotations
 
 import numba as nb
-import numpy as np
 
-_DR = np.array([-1, 0, 1, 0], dtype=np.int64)
-_DC = np.array([0, 1, 0, -1], dtype=np.int64)
+from .geometry import DIRECTION_DELTAS
+
+_DR = DIRECTION_DELTAS[:, 0].copy()
+_DC = DIRECTION_DELTAS[:, 1].copy()
 
 # Outcome of a JOIN attempt
 JOIN_NONE, JOIN_WRONG, JOIN_OK = 0, 1, 2
 
 
-@nb.njit(cache=True)
-def queue_entry_spot(members_count: int, head: int, queue_len: int) -> int:
-    """First spot behind the last queued agent, or -1 when the queue is full."""
+@nb.vectorize(["int64(int64, int64, int64)"], cache=True)
+def queue_entry_spot(members_count, head, queue_len):
+    """First spot behind the last queued agent, or -1 when the queue is full (a ufunc: the
+    kernels call it per queue, the observation and the planner on arrays of queues)."""
     if members_count == 0:
         return 0
     spot = head + members_count

@@ -13,6 +13,7 @@ import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
 from .geometry import DIRECTION_DELTAS, FREE
+from .kernels import queue_entry_spot
 
 if TYPE_CHECKING:
     from .world import World
@@ -84,14 +85,14 @@ class ObservationBuilder:
         w = self.world
         qlen = w.config.queue_len
         count, head = w.queue_count, w.queue_head
-        spot = np.where(count == 0, 0, head + count)
+        spot = queue_entry_spot(count, head, qlen)
         # -1 (infinite) for caches; resource queues read their resource (a world may have none)
         res_q = ~w.queue_is_cache
         remaining = np.full(len(count), -1, dtype=np.int64)
         capacity = np.full(len(count), -1, dtype=np.int64)
         remaining[res_q] = w.resource_remaining[w.queue_resource[res_q]]
         capacity[res_q] = w.resource_capacity[w.queue_resource[res_q]]
-        accepts = (spot < qlen) & ((remaining < 0) | (remaining > count * w.load_full))
+        accepts = (spot >= 0) & ((remaining < 0) | (remaining > count * w.load_full))
         q = np.flatnonzero(accepts)
         entry = w.queue_cells[q, spot[q]]
         value = np.where(remaining[q] < 0, 1.0, remaining[q] / np.maximum(capacity[q], 1)).astype(np.float32)

@@ -91,8 +91,10 @@ class FormicParallelEnv(ParallelEnv):
                 self.scenario_seed += 1
             scenario = generate_scenario(self.config, self.scenario_seed)
         if self.world is None:
-            self.world = World(scenario)
-        result = self.world.reset(scenario)
+            self.world = World(scenario)  # reset by its constructor
+            result = self.world.last_result
+        else:
+            result = self.world.reset(scenario)
         self.agents = self.possible_agents[:]
         return self._observations(result), self._infos(result)
 

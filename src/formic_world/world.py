@@ -31,6 +31,7 @@ from .geometry import (
     CACHE,
     DIRECTION_DELTAS,
     FREE,
+    N_ACTIONS,
     NEST_QUEUE_DIRECTIONS,
     RESOURCE,
     nest_cache_cells,
@@ -135,7 +136,7 @@ class World:
         self.t = 0
         self.rewards = np.zeros(n, dtype=np.float64)
         self.observer = ObservationBuilder(self)
-        self._mask = np.zeros((n, 5), dtype=np.bool_)
+        self._mask = np.zeros((n, N_ACTIONS), dtype=np.bool_)
         return self._result(food=0.0)
 
     def _enqueue_at_start(self, agent: int, q: int) -> None:
@@ -255,13 +256,15 @@ class World:
 
     # ------------------------------------------------------------ observation
     def _result(self, food: float) -> StepResult:
-        return StepResult(
+        """The step's result, also kept as :attr:`last_result` (a new world's step-0 one)."""
+        self.last_result = StepResult(
             observations=self.observer.observe(),
             action_mask=self.action_mask(),
             rewards=self.rewards.copy(),
             food=food,
             done=self.done,
         )
+        return self.last_result
 
     def action_mask(self) -> np.ndarray:
         """Environment validity of each action for each agent, (N, 5) bool."""
