@@ -464,7 +464,7 @@ def serve_training_world(
     training start), with the training masks in the observations. One meta-agent world: the
     configuration's ``teams`` must hold one team. ``on_episode`` gets each episode's summary
     (with ``episode``, the global episode number, and the curriculum's intensities)."""
-    from formic_trainer.train import sample_scenarios, scenario_rng
+    from formic_trainer.worlds import sample_scenarios, scenario_rng
 
     from .env import ros_session
 
