@@ -19,15 +19,10 @@ from formic_agent.learned import LearnedPolicy
 from formic_agent.network import NETWORK_PRESETS, ForMICNet, NetworkConfig, count_parameters
 from formic_agent.policy import AgentBatch
 from formic_agent.registry import make_policy
-from formic_trainer.train import (
-    MetaAgents,
-    Trainer,
-    make_config,
-    parse_overrides,
-    policy_losses,
-    set_learning_rate,
-    share_rewards,
-)
+from formic_trainer.algorithm import policy_losses, set_learning_rate
+from formic_trainer.config import make_config, parse_overrides
+from formic_trainer.train import Trainer
+from formic_trainer.worlds import MetaAgents, share_rewards
 from formic_world import World, WorldConfig, generate_scenario
 
 TINY = dict(teams=(4,), world_sizes=((16, 16),), episode_steps=32, rollout_steps=16, threads=1)

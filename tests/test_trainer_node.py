@@ -26,7 +26,7 @@ torch = pytest.importorskip("torch")
 
 from formic_agent.checkpoint import CheckpointError, read_checkpoint  # noqa: E402
 from formic_agent.learned import LearnedPolicy  # noqa: E402
-from formic_ros.rollout_msgs import apply_weights, rollout_arrays, rollout_message  # noqa: E402
+from formic_ros.trainer_node import apply_weights, rollout_arrays, rollout_message  # noqa: E402
 from formic_ros.trainer_node import RemoteLearner  # noqa: E402
 from formic_trainer.actor import Actor  # noqa: E402
 from formic_trainer.config import make_config  # noqa: E402

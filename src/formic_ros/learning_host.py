@@ -26,19 +26,15 @@ from formic_trainer.worlds import Frame, share_rewards
 
 from . import convert, qos
 from .agent_host import WorldWatch, read_scenario
-from .rollout_msgs import ROLLOUT_DEPTH, ROLLOUTS, WEIGHTS, apply_weights, rollout_message
+from .trainer_node import ROLLOUT_DEPTH, ROLLOUTS, WEIGHTS, apply_weights, rollout_message
 
 
 class HostActor:
-    """This host's agents as the trainer's :class:`Actor`. The actor is made with the first
-    weights (their version seeds its streams, as ``formic train`` seeds its actor with the
-    updates it resumes from); each chunk becomes a Rollout message tagged with the weights
-    version that acted, and the food the host's agents delivered.
-
-    Per episode :meth:`start_episode`; per step :meth:`act`, then :meth:`outcome` with what
-    the next observations carry, which returns the chunk's Rollout message when the chunk is
-    complete (``rollout_steps`` steps, or the episode's end). ``first_episode``: the global
-    episode number of the first episode (a resumed run's)."""
+    """This host's agents as ``formic train``'s :class:`Actor`, made with the first weights
+    (their version seeds its streams). Per episode :meth:`start_episode`; per step :meth:`act`,
+    then :meth:`outcome`, which returns the chunk's Rollout message (tagged with the weights
+    version that acted and the food delivered) once it is complete. ``first_episode``: the
+    global number of the first episode (a resumed run's)."""
 
     def __init__(self, cfg: TrainConfig, agent_ids, host: str = "", first_episode: int = 0):
         self.cfg, self.host = cfg, host

@@ -1,18 +1,12 @@
-"""The trainer node: Rollout messages in, the learner's updates out as Weights.
+"""The trainer node: Rollout messages in, :class:`formic_trainer.learner.Learner` updates
+(``formic train``'s own) out as Weights versions (the updates so far; latched, so a late host
+gets the newest), identified by a hash of their bytes.
 
-The learning state is a :class:`formic_trainer.learner.Learner`, the very class ``formic
-train`` updates (same network initialisation, optimiser, random stream, update, checkpoints,
-TensorBoard logs and resume); every update is broadcast as a new weights version (the number
-of updates so far; reliable, transient-local: a host that starts late gets the newest),
-identified by a hash of its bytes.
-
-A Rollout carries what the environment produced (:mod:`formic_ros.rollout_msgs`); the node
-recomputes what the network said at the time (log-probabilities, values, the bootstrap
-value) by running the weights version that chose the actions (``weights_version``) over the
-observations step by step, as the host's actor did, so PPO's ratio is taken against the
-behaviour policy. Recent versions are kept for that (``max_lag``); older rollouts are
-dropped. An episode sent in several chunks continues its LSTM state from the previous chunk.
-The hosts' side is :mod:`formic_ros.learning_host`.
+A Rollout carries what the environment produced; the node recomputes what the network said
+(log-probabilities, values, bootstrap value) with the weights version that acted, step by
+step as the host did, so PPO's ratio is taken against the behaviour policy (versions are kept
+for ``max_lag`` updates; older rollouts are dropped). An episode's chunks continue its LSTM
+state. The hosts' side is :mod:`formic_ros.learning_host`.
 """
 
 from __future__ import annotations
@@ -29,15 +23,81 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from formic_agent.checkpoint import state_dict_bytes
-from formic_agent.network import N_EXTRA_INPUTS, ForMICNet
+from formic_agent.checkpoint import CheckpointError, read_checkpoint, state_dict_bytes
+from formic_agent.network import N_ACTIONS, N_EXTRA_INPUTS, ForMICNet, NetworkConfig
 from formic_trainer.algorithm import sampling_mask
 from formic_trainer.config import TrainConfig
 from formic_trainer.learner import Learner
 
-from .rollout_msgs import ROLLOUT_DEPTH, ROLLOUTS, WEIGHTS, rollout_arrays
-
+ROLLOUTS = "rollouts"
+WEIGHTS = "weights"
+ROLLOUT_DEPTH = 16
 DEFAULT_MAX_LAG = 4  # weights versions a rollout may lag behind and still be learned from
+
+
+# ----------------------------------------------------------------------------- messages
+def rollout_message(rollout: dict[str, np.ndarray], host: str = "", episode: int = 0, weights_version: int = 0,
+                    food: float = 0.0, extra: bool = True):
+    """An actor's rollout (:meth:`formic_trainer.actor.Actor.rollout`) as a Rollout message;
+    the odometry inputs only with ``extra`` (networks that read them)."""
+    from formic_interfaces.msg import Rollout
+
+    from .convert import f32, u8, u32
+
+    frames, agents, channels, size, _ = rollout["obs"].shape
+    return Rollout(
+        weights_version=int(weights_version), host=host, episode=int(episode),
+        n_agents=agents, n_steps=frames - 1, channels=channels, size=size,
+        agent_ids=u32(rollout["agent_ids"]), observations=f32(rollout["obs"]), actions=u8(rollout["actions"]),
+        rewards=f32(rollout["rewards"]), valid_masks=u8(rollout["train_mask"]), loss_mask=u8(rollout["loss_mask"]),
+        value_mask=u8(rollout["value_mask"]),
+        sample_masks=u8(rollout["sample_mask"]) if "sample_mask" in rollout else b"",
+        extra_inputs=f32(rollout["extra"] if extra and "extra" in rollout else np.zeros(0)),
+        food=float(food),
+    )
+
+
+def rollout_arrays(msg) -> dict[str, np.ndarray]:
+    """A received Rollout as arrays (T+1 observation frames, T of everything else)."""
+    steps, agents, channels, size = int(msg.n_steps), int(msg.n_agents), int(msg.channels), int(msg.size)
+
+    def field(name: str, dtype, shape: tuple[int, ...]) -> np.ndarray:
+        values = np.frombuffer(getattr(msg, name), dtype=dtype)
+        if values.size != int(np.prod(shape)):
+            raise ValueError(f"Rollout.{name} has {values.size} values, expected {int(np.prod(shape))} {shape}")
+        return values.reshape(shape)
+
+    if steps < 1 or agents < 1:
+        raise ValueError(f"empty rollout ({steps} steps, {agents} agents)")
+    optional = {}
+    if len(msg.sample_masks):
+        optional["sample_mask"] = field("sample_masks", np.uint8, (steps, agents, N_ACTIONS)).astype(bool)
+    if len(msg.extra_inputs):
+        optional["extra"] = field("extra_inputs", np.float32, (steps + 1, agents, N_EXTRA_INPUTS))
+    return {
+        "agent_ids": field("agent_ids", np.uint32, (agents,)).astype(np.int64),
+        "obs": field("observations", np.float32, (steps + 1, agents, channels, size, size)),
+        "actions": field("actions", np.uint8, (steps, agents)).astype(np.int64),
+        "rewards": field("rewards", np.float32, (steps, agents)),
+        "train_mask": field("valid_masks", np.uint8, (steps, agents, N_ACTIONS)).astype(bool),
+        "loss_mask": field("loss_mask", np.uint8, (steps, agents)).astype(np.float32),
+        "value_mask": field("value_mask", np.uint8, (steps, agents)).astype(np.float32),
+        **optional,
+    }
+
+
+def apply_weights(policy, msg) -> int:
+    """Load a Weights message into a learned policy (``weights_only`` loading); returns its
+    version. Hosts call this between episodes."""
+    payload = read_checkpoint(bytes(msg.data))
+    config = NetworkConfig.from_dict(payload["network"])
+    if config != policy.net.config:
+        raise CheckpointError(f"weights for network {config} do not fit the policy's {policy.net.config}")
+    policy.load_state_dict(payload["state_dict"])
+    return int(msg.version)
+
+
+# ----------------------------------------------------------------------------- learning
 
 
 @torch.no_grad()

@@ -459,7 +459,7 @@ def serve_training_world(
     on_episode: Callable[[dict], None] | None = None,
 ) -> list[dict]:
     """Distributed training's world: ``episodes`` episodes, each on a new scenario drawn as the
-    in-process trainer draws them (:func:`formic_trainer.train.sample_scenarios` from the
+    in-process trainer draws them (:func:`formic_trainer.worlds.sample_scenarios` from the
     run's scenario stream at ``first_episode``: world size, obstacles, curriculum intensities,
     training start), with the training masks in the observations. One meta-agent world: the
     configuration's ``teams`` must hold one team. ``on_episode`` gets each episode's summary

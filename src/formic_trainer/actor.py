@@ -1,16 +1,11 @@
-"""The actor: agents acting under the training filter, and the rollout their learners make.
+"""The actor: a set of agents (team-wide ids, in order) acting under the training filter.
 
-An :class:`Actor` drives a set of agents (ids of the whole team, in order) with a network:
-one LSTM state per agent, a torch sampler and a numpy stream of its own (which agents act
-unfiltered this episode under filter annealing; the "replace" filter's replacements), and
-one rollout buffer for its learning agents. Per episode :meth:`Actor.start_episode`; per
-step :meth:`Actor.act` then :meth:`Actor.reward`; at a chunk's end :meth:`Actor.rollout`
-hands the chunk over for :meth:`formic_trainer.learner.Learner.learn`.
-
-The in-process trainer runs one actor over every agent of its worlds; a ROS learning host
-runs one over its agents (``formic_ros.learning_host``). Both seed the actor's streams from
-the weights version they start with (:func:`actor_streams`), so one host driving the whole
-team acts exactly as ``formic train``.
+One LSTM state per agent, a torch sampler and a numpy stream of its own (the episode's
+unfiltered agents under filter annealing, the "replace" filter's replacements), seeded from
+the weights version it starts with (:func:`actor_streams`), and one rollout buffer for its
+learning agents. Per episode :meth:`Actor.start_episode`; per step :meth:`Actor.act`, then
+:meth:`Actor.reward`; at a chunk's end :meth:`Actor.rollout`, for the learner. ``formic
+train`` runs one over all its worlds' agents, a ROS learning host one over its agents.
 """
 
 from __future__ import annotations
@@ -120,16 +115,11 @@ class Actor:
                                                    sample_mask=allowed)
         free = ~frame.queued
         self.valid_rate.append(float(frame.valid[free, actions[free]].mean()) if free.any() else 1.0)
-        rows, chunk = self.learning, self.chunk
-        chunk["obs"].append(frame.obs[rows])
-        chunk["extra"].append(frame.extra[rows])
-        chunk["actions"].append(actions[rows].astype(np.int64))
-        chunk["logp"].append(logp[rows])
-        chunk["values"].append(values[0].numpy()[rows])
-        chunk["train_mask"].append(frame.train_mask[rows])
-        chunk["sample_mask"].append(allowed[rows])
-        chunk["loss_mask"].append(free[rows].astype(np.float32))
-        chunk["value_mask"].append(value_mask[rows])
+        step = {"obs": frame.obs, "extra": frame.extra, "actions": actions.astype(np.int64), "logp": logp,
+                "values": values[0].numpy(), "train_mask": frame.train_mask, "sample_mask": allowed,
+                "loss_mask": free.astype(np.float32), "value_mask": value_mask}
+        for key, value in step.items():
+            self.chunk[key].append(value[self.learning])
         return actions
 
     def demonstrate(self, expert_actions: np.ndarray, wanted: np.ndarray) -> None:
@@ -147,11 +137,11 @@ class Actor:
         last step (``obs``, ``extra``: rows as ``agent_ids``), and a new chunk. With
         ``bootstrap`` it carries the value of that last frame (``next_value``)."""
         rows = self.learning
-        chunk = {key: np.stack(values) for key, values in self.chunk.items() if values}
-        if len(chunk.get("rewards", ())) != len(self) or not len(self):
+        if len(self.chunk["rewards"]) != len(self) or not len(self):
             raise RuntimeError("a rollout needs at least one step, each with its rewards")
-        chunk["obs"] = np.concatenate([chunk["obs"], obs[rows][None]])
-        chunk["extra"] = np.concatenate([chunk["extra"], extra[rows][None]])
+        self.chunk["obs"].append(obs[rows])  # the last frame, for bootstrapping
+        self.chunk["extra"].append(extra[rows])
+        chunk = {key: np.stack(values) for key, values in self.chunk.items() if values}
         chunk.update(agent_ids=self.ids[rows], h0=self.h0, c0=self.c0)
         if bootstrap:
             _, next_value, _ = self.net(torch.from_numpy(np.ascontiguousarray(obs))[None], self.state,

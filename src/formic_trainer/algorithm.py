@@ -1,11 +1,6 @@
-"""The learning algorithm's functions: the training network, the action filter's sampling
-mask, the loss terms, GAE and one PPO/A2C update, the optimiser and its learning rate.
-
-The paper's algorithm (SPEC §6): an actor-critic over whole episodes with bootstrapped
-discounted returns, loss = L_pi (with entropy bonus) + 0.5 L_V + 0.5 L_valid, queued steps
-masked out of every term, gradients of all learning agents summed into one global network.
-The ``cpu`` preset adds PPO-style clipped updates over chunks with GAE (see config.py).
-"""
+"""The algorithm (SPEC §6: actor-critic, loss = L_pi (entropy bonus) + 0.5 L_V + 0.5 L_valid,
+queued steps masked out; the ``cpu`` preset adds PPO clipping and GAE): network, sampling
+mask, loss terms, GAE, one update, the optimiser and its learning rate."""
 
 from __future__ import annotations
 

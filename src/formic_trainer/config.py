@@ -17,20 +17,10 @@ from typing import Literal
 from formic_agent.network import NETWORK_PRESETS
 from formic_world import REWARD_PRESETS
 
-Preset = Literal["paper", "cpu"]
-ValidActions = Literal["all", "moves"]
-ValidLoss = Literal["bce", "mass"]
-Optimizer = Literal["nadam", "adam"]
-LossReduction = Literal["sum", "mean"]
-ImitationAgents = Literal["loaded", "all"]
-ActionFilter = Literal["replace", "mask", "none"]
-TrainingFilter = Literal["paper", "reference"]
-Rewards = Literal["paper", "reference"]  # formic_world.REWARD_PRESETS
-
 
 @dataclass
 class TrainConfig:
-    preset: Preset = "paper"
+    preset: Literal["paper", "cpu"] = "paper"
     network: str = "paper"  # a NETWORK_PRESETS name
     seed: int = 0
     # Meta-agent environments: team size, learning agents (-1 = all), world side range.
@@ -54,13 +44,13 @@ class TrainConfig:
     # ("moves"): JOIN is valid on ~4% of steps, and fitting that base rate through the shared
     # logits suppresses JOIN before the network can recognise a queue entry (measured: food
     # collapses), while the policy gradient alone teaches when to JOIN.
-    valid_actions: ValidActions = "all"
+    valid_actions: Literal["all", "moves"] = "all"
     # "bce": the paper's valid-action predictor (sigmoid of the logits vs the mask). "mass":
     # -log of the probability the policy's move distribution puts on valid moves. With masked
     # sampling the policy gradient never touches invalid logits, and BCE (a per-action
     # threshold at 0) left agents unable to act unmasked (measured: 59 food with the filter,
     # 3 without); "mass" trains exactly the unmasked softmax agents use at test time.
-    valid_loss: ValidLoss = "bce"
+    valid_loss: Literal["bce", "mass"] = "bce"
     # With action_filter="mask": also mask JOIN when invalid (True), or let agents try JOIN
     # anywhere as at test time, where a JOIN with no queue in reach wastes the step (False).
     mask_join: bool = True
@@ -74,7 +64,7 @@ class TrainConfig:
     filter_anneal_end: int = 0
     filter_final: float = 1.0
     init_weights: str = ""  # start the network from this checkpoint (warm start / fine-tune)
-    optimizer: Optimizer = "nadam"
+    optimizer: Literal["nadam", "adam"] = "nadam"
     lr: float = 5e-6
     # Learning-rate warm-up over the first N updates of a run (beyond the paper). A fine-tune
     # from bare weights (init_weights) starts Adam with empty moments, whose first steps move
@@ -82,7 +72,7 @@ class TrainConfig:
     # one episode set of a crowd fine-tune. 0 = off.
     lr_warmup: int = 0
     max_grad_norm: float = 10.0
-    loss_reduction: LossReduction = "sum"  # "sum": gradients of all learning agents are summed (paper)
+    loss_reduction: Literal["sum", "mean"] = "sum"  # "sum": gradients of all learning agents are summed (paper)
     normalize_advantages: bool = False
     reward_scale: float = 1.0
     # Team reward (beyond the paper): each agent's reward becomes (1-f)*own + f*(its world's team
@@ -97,12 +87,12 @@ class TrainConfig:
     # C-SAF-11's orbit keeps 128 agents flowing. "" = off.
     imitate: str = ""
     imitation_coef: float = 0.0
-    imitation_agents: ImitationAgents = "loaded"
+    imitation_agents: Literal["loaded", "all"] = "loaded"
     imitation_radius: int = 0
     # Techniques (the paper's ablation switches)
-    action_filter: ActionFilter = "replace"  # "replace" (paper) | "mask" (mask invalid logits) | "none"
-    training_filter: TrainingFilter = "paper"  # carrying agents' filter: "paper" | "reference" (SPEC §4)
-    rewards: Rewards = "paper"  # a formic_world.REWARD_PRESETS name: "paper" | "reference" (SPEC §4)
+    action_filter: Literal["replace", "mask", "none"] = "replace"  # replace (paper); mask: mask invalid logits
+    training_filter: Literal["paper", "reference"] = "paper"  # carrying agents' filter (SPEC §4)
+    rewards: Literal["paper", "reference"] = "paper"  # a formic_world.REWARD_PRESETS name (SPEC §4)
     pheromones: bool = True  # False: train (and test) without pheromones
     curriculum: bool = True
     curriculum_start: int = 5000
@@ -135,7 +125,7 @@ def _choices() -> dict[str, tuple[str, ...]]:
     return {name: typing.get_args(hint) for name, hint in hints.items() if typing.get_origin(hint) is Literal}
 
 
-assert set(typing.get_args(Rewards)) == set(REWARD_PRESETS), "Rewards must name formic_world.REWARD_PRESETS"
+assert set(_choices()["rewards"]) == set(REWARD_PRESETS), "rewards must name formic_world.REWARD_PRESETS"
 
 
 PRESETS = {

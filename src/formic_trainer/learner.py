@@ -1,12 +1,7 @@
-"""The learner: one network, its optimiser and the run's counters, updated from rollouts.
-
-A rollout is what an :class:`formic_trainer.actor.Actor` hands over for one chunk (the
-behaviour policy's log-probabilities and values included); :meth:`Learner.learn` makes one
-update of it (:func:`formic_trainer.algorithm.update`). The learner owns its random stream
-(minibatch permutations), the weights version (the number of updates so far), checkpoints,
-resume and the TensorBoard log. The in-process trainer (``formic train``) and the ROS trainer
-node (``formic train-ros``) both drive this class.
-"""
+"""The learner: network, optimiser, counters (the weights version is the updates so far),
+its own random stream (minibatch permutations), checkpoints, resume and the TensorBoard log.
+:meth:`Learner.learn` makes one update from an actor's rollout. ``formic train`` and the ROS
+trainer node (``formic train-ros``) both drive it."""
 
 from __future__ import annotations
 

@@ -1,13 +1,7 @@
 """ForMIC training, top to bottom: worlds -> actor -> world.step -> learner.
 
-Several "meta-agent" worlds (:mod:`formic_trainer.worlds`) step together; one
-:class:`~formic_trainer.actor.Actor` acts for all their agents under the training filter and
-collects its learning agents' rollout; every ``rollout_steps`` steps the
-:class:`~formic_trainer.learner.Learner` updates the network from it (the same network the
-actor runs). Action filtering, the pheromone-highway curriculum and random world sizes and
-obstacles per reset are switches of :class:`~formic_trainer.config.TrainConfig`; the ``cpu``
-preset keeps the paper's losses and techniques but learns in hours on two cores.
-
+The meta-agent worlds step together, one :class:`Actor` acts for all their agents and every
+``rollout_steps`` steps the :class:`Learner` updates the network they share from its rollout.
 ``formic train-ros`` runs the same actor in a ROS learning host and the same learner in the
 trainer node (:mod:`formic_ros.learning_host`, :mod:`formic_ros.trainer_node`).
 """
@@ -21,11 +15,10 @@ import numpy as np
 
 from formic_agent.checkpoint import load_network, save_checkpoint
 
-from .actor import Actor, filter_probability, select_actions  # noqa: F401  (re-exported)
-from .algorithm import policy_losses, set_learning_rate, update  # noqa: F401  (re-exported)
-from .config import PRESETS, TrainConfig, make_config, parse_overrides  # noqa: F401  (re-exported)
+from .actor import Actor, filter_probability
+from .config import TrainConfig, make_config, parse_overrides  # noqa: F401  (make_config, parse_overrides: the CLI's)
 from .learner import Learner
-from .worlds import MetaAgents, sample_scenarios, scenario_rng, share_rewards  # noqa: F401  (re-exported)
+from .worlds import MetaAgents
 
 
 class Trainer:
@@ -92,9 +85,6 @@ class Trainer:
                 f"{learner.seconds / 60:.1f} min"
             )
         self.close()
-
-    def save(self) -> None:
-        self.learner.save()
 
     def close(self) -> None:
         self.learner.close()

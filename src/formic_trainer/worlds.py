@@ -1,9 +1,5 @@
-"""The training worlds: scenarios drawn per episode set, and the meta-agent worlds stepped
-together (worlds-side bookkeeping: team rewards, the demonstrator beside the learners).
-
-The in-process trainer and the ROS world node (distributed training) draw scenarios from
-the same :func:`sample_scenarios` on the same :func:`scenario_rng`.
-"""
+"""The training worlds: scenarios per episode set (also the ROS world node's), and the
+meta-agent worlds stepped together with their team rewards and demonstrators."""
 
 from __future__ import annotations
 
@@ -21,9 +17,8 @@ from .config import TrainConfig
 
 
 class Frame(NamedTuple):
-    """What a set of agents sees at one step (rows: agents): observations (A, C, V, V), the
-    odometry inputs (A, 4), the environment's valid actions (A, 5), the training filter's
-    valid actions (A, 5) and which agents are queued (A,)."""
+    """What agents (rows) see at one step: observations, odometry inputs, valid actions (the
+    environment's, the training filter's), queued or not."""
 
     obs: np.ndarray
     extra: np.ndarray
@@ -84,11 +79,6 @@ class MetaAgents:
         self.worlds: list[World] = []
         self.offsets = np.cumsum([0, *cfg.teams])
         self.n_agents = int(self.offsets[-1])
-        learners = [
-            np.arange(o, o + (t if cfg.learning_agents < 0 else min(cfg.learning_agents, t)))
-            for o, t in zip(self.offsets[:-1], cfg.teams)
-        ]
-        self.learners = np.concatenate(learners)
         self.experts: list = []  # one demonstrator per world (cfg.imitate)
         self._seen: list[tuple[np.ndarray, np.ndarray]] = []  # each world's last (observations, valid)
 
