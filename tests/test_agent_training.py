@@ -19,15 +19,10 @@ from formic_agent.learned import LearnedPolicy
 from formic_agent.network import NETWORK_PRESETS, ForMICNet, NetworkConfig, count_parameters
 from formic_agent.policy import AgentBatch
 from formic_runtime.registry import make_policy
-from formic_trainer.train import (
-    MetaAgents,
-    Trainer,
-    make_config,
-    parse_overrides,
-    policy_losses,
-    set_learning_rate,
-    share_rewards,
-)
+from formic_trainer.algorithm import policy_losses, set_learning_rate
+from formic_trainer.config import make_config, parse_overrides
+from formic_trainer.train import Trainer
+from formic_trainer.worlds import MetaAgents, share_rewards
 from formic_world import World, WorldConfig, generate_scenario
 
 TINY = dict(teams=(4,), world_sizes=((16, 16),), episode_steps=32, rollout_steps=16, threads=1)
@@ -232,3 +227,52 @@ def test_imitation_loss_is_the_cross_entropy_of_the_demonstrators_actions():
     assert terms["imitation"].item() == pytest.approx(ce.item(), rel=1e-5)
     without = policy_losses(net, cfg, {k: v for k, v in batch.items() if k not in ("expert_actions", "imitation_mask")})
     assert terms["loss"].item() == pytest.approx(without["loss"].item() + 0.5 * ce.item(), rel=1e-5)
+
+
+def test_modes_are_checked_when_a_config_is_made():
+    with pytest.raises(ValueError, match="action_filter must be one of 'replace', 'mask', 'none', not 'mask2'"):
+        make_config("cpu", **parse_overrides(["action_filter=mask2"]))
+    with pytest.raises(ValueError, match="valid_loss must be one of 'bce', 'mass', not 'bcee'"):
+        make_config("cpu", valid_loss="bcee")
+    with pytest.raises(ValueError, match="network must be one of"):
+        make_config("cpu", network="cpu-nets")
+
+
+def test_a_committed_checkpoint_resumes_weights_optimiser_and_counters(tmp_path):
+    """A run directory written before the trainer was split into actor and learner resumes:
+    its weights, optimiser state and counters, and it learns on from there."""
+    import shutil
+    from pathlib import Path
+
+    from formic_agent.checkpoint import read_checkpoint
+    from formic_trainer.actor import Actor
+    from formic_trainer.config import load_train_config
+    from formic_trainer.learner import Learner
+
+    stored = Path(__file__).resolve().parents[1] / "models" / "training" / "cpu-v3"
+    for name in ("latest.pt", "config.json"):
+        shutil.copy(stored / name, tmp_path / name)
+    cfg = load_train_config(tmp_path / "config.json")
+    payload = read_checkpoint(tmp_path / "latest.pt")
+    learner = Learner(cfg, tmp_path, resume=True, log=lambda *_: None)
+    progress = payload["progress"]
+    assert (learner.episode, learner.updates, learner.env_steps) == (
+        progress["episode"], progress["updates"], progress["env_steps"])
+    for key, value in payload["state_dict"].items():
+        assert torch.equal(learner.net.state_dict()[key], value)
+    assert learner.optimizer.state_dict()["state"], "the optimiser's moments are restored"
+    small = dataclasses.replace(cfg, teams=(4,), world_sizes=((16, 16),), episode_steps=8, rollout_steps=8)
+    envs = MetaAgents(small)
+    envs.reset(learner.episode)
+    actor = Actor(small, learner.net, np.arange(4), version=learner.version)
+    actor.start_episode(learner.episode)
+    frame = envs.observe()
+    for _ in range(8):
+        rewards, _ = envs.step(actor.act(frame))
+        actor.reward(rewards)
+        frame = envs.observe()
+    assert np.isfinite(learner.learn(actor.rollout(frame.obs, frame.extra))["loss"])
+    learner.end_episodes(1, {})
+    learner.close()
+    saved = read_checkpoint(tmp_path / "latest.pt")["progress"]
+    assert (saved["episode"], saved["updates"]) == (progress["episode"] + 1, progress["updates"] + 1)

@@ -22,8 +22,9 @@ torch = pytest.importorskip("torch")
 from ros_helpers import Spawner, fresh_domain_id  # noqa: E402
 
 from formic_agent.checkpoint import read_checkpoint  # noqa: E402
-from formic_ros.trainer_node import load_train_config, train_config_from_dict  # noqa: E402
-from formic_trainer.train import MetaAgents, Trainer, make_config, sample_scenarios, scenario_rng  # noqa: E402
+from formic_trainer.config import load_train_config, make_config, train_config_from_dict  # noqa: E402
+from formic_trainer.train import Trainer  # noqa: E402
+from formic_trainer.worlds import MetaAgents, sample_scenarios, scenario_rng  # noqa: E402
 
 pytestmark = pytest.mark.filterwarnings("ignore::UserWarning", "ignore:module 'sre_:DeprecationWarning")
 
@@ -49,14 +50,13 @@ def test_world_stream_draws_the_trainers_scenarios():
     cfg = make_config("cpu", teams=(6,), world_sizes=((20, 40),), obstacle_range=(0.0, 0.1), curriculum_start=1,
                       curriculum_end=3)
     envs = MetaAgents(cfg)
-    envs.rng = scenario_rng(cfg, 0)
     stream = scenario_rng(cfg, 0)
     for episode in range(4):
         envs.reset(episode)
         (scenario,), highway, _ = sample_scenarios(cfg, stream, episode)
         assert scenario.to_json() == envs.worlds[0].scenario.to_json()
         assert highway == envs.highway
-    envs.rng = scenario_rng(cfg, 7)
+    envs = MetaAgents(cfg, first_episode=7)
     envs.reset(7)
     assert sample_scenarios(cfg, scenario_rng(cfg, 7), 7)[0][0].to_json() == envs.worlds[0].scenario.to_json()
 
@@ -68,8 +68,7 @@ def in_process(run_dir, episodes: int, resume: bool, cfg=CFG) -> tuple[list[floa
     for _ in range(episodes):
         food.append(trainer.run_episode_set()["food_env0"])
         seeds.append(trainer.envs.worlds[0].scenario.seed)
-    trainer.save()
-    trainer.writer.close()
+    trainer.close()
     return food, seeds, trainer.net.state_dict()
 
 

@@ -1,13 +1,14 @@
 """The trainer node learns exactly what the in-process trainer learns from the same rollouts.
 
 A chunk of experience is collected in this process with the in-process trainer's machinery
-(its worlds, network, sampler); the reference is ``update()`` on that chunk. A trainer node in
+(its worlds and actor); the reference is the in-process learner's update on that chunk. A trainer node in
 its own process receives the same chunk as a Rollout message and must broadcast weights equal
 to the reference, parameter for parameter, with increasing versions, and checkpoint them.
 """
 
 from __future__ import annotations
 
+import copy
 import json
 import os
 import signal
@@ -25,14 +26,12 @@ torch = pytest.importorskip("torch")
 
 from formic_agent.checkpoint import CheckpointError, read_checkpoint  # noqa: E402
 from formic_agent.learned import LearnedPolicy  # noqa: E402
-from formic_ros.trainer_node import (  # noqa: E402
-    Learner,
-    RolloutCollector,
-    apply_weights,
-    rollout_arrays,
-    scale_rewards,
-)
-from formic_trainer.train import Trainer, make_config, select_actions, update  # noqa: E402
+from formic_ros.trainer_node import apply_weights, rollout_arrays, rollout_message  # noqa: E402
+from formic_ros.trainer_node import RemoteLearner  # noqa: E402
+from formic_trainer.actor import Actor  # noqa: E402
+from formic_trainer.config import make_config  # noqa: E402
+from formic_trainer.learner import Learner  # noqa: E402
+from formic_trainer.worlds import MetaAgents  # noqa: E402
 
 pytestmark = pytest.mark.filterwarnings("ignore::UserWarning", "ignore:module 'sre_:DeprecationWarning")
 
@@ -47,41 +46,23 @@ def quiet(_text: str) -> None:
     pass
 
 
-def collect(trainer: Trainer, episode: int) -> tuple[RolloutCollector, np.ndarray, dict[str, np.ndarray]]:
-    """One chunk from the trainer's own worlds and network, as ``Trainer.run_episode_set``
-    collects it; returns the collector, the bootstrap observations and the network's outputs."""
-    envs, net, cfg = trainer.envs, trainer.net, trainer.cfg
+def collect(net, episode: int) -> dict[str, np.ndarray]:
+    """One chunk (a whole episode) from the training worlds and the actor, as ``formic train``
+    collects it: the rollout with the behaviour policy's outputs."""
+    envs = MetaAgents(CFG, first_episode=episode)
     envs.reset(episode)
-    h, c = net.initial_state(envs.n_agents)
-    obs, extra, valid, train_mask, queued = envs.observe()
-    collector = RolloutCollector(np.arange(envs.n_agents), host="test-host", episode=episode, weights_version=0)
-    logp_all, values_all = [], []
+    actor = Actor(CFG, net, np.arange(envs.n_agents), version=0)
+    actor.start_episode(episode)
+    frame = envs.observe()
     for _ in range(STEPS):
-        with torch.no_grad():
-            logits, values, (h, c) = net(torch.from_numpy(obs)[None], (h, c), torch.from_numpy(extra)[None])
-        actions, logp, value_mask = select_actions(cfg, logits[0], valid, train_mask, trainer.generator, trainer.rng)
-        collector.add_step(obs, train_mask, queued, actions, value_mask)
-        logp_all.append(logp)
-        values_all.append(values[0].numpy())
-        rewards, _ = envs.step(actions)
-        collector.add_rewards(rewards)
-        obs, extra, valid, train_mask, queued = envs.observe()
-    with torch.no_grad():
-        _, next_value, _ = net(torch.from_numpy(obs)[None], (h, c), torch.from_numpy(extra)[None])
-    outputs = {"logp": np.stack(logp_all), "values": np.stack(values_all), "next_value": next_value[0].numpy(),
-               "h0": np.zeros((1, envs.n_agents, net.config.rnn), np.float32)}
-    return collector, obs, outputs
+        rewards, _ = envs.step(actor.act(frame))
+        actor.reward(rewards)
+        frame = envs.observe()
+    return actor.rollout(frame.obs, frame.extra)
 
 
-def reference_data(collector: RolloutCollector, last_obs: np.ndarray, outputs: dict) -> dict[str, np.ndarray]:
-    """What the in-process trainer would pass to update() for this chunk (rewards as sent)."""
-    a = collector.arrays(last_obs)
-    steps, agents = a["actions"].shape
-    return {"obs": a["obs"][:steps], "extra": np.zeros((steps, agents, 3), np.float32), "actions": a["actions"],
-            "logp": outputs["logp"], "values": outputs["values"],
-            "rewards": scale_rewards(a["rewards"], CFG.reward_scale),
-            "train_mask": a["train_mask"], "loss_mask": a["loss_mask"], "value_mask": a["value_mask"],
-            "h0": outputs["h0"], "c0": outputs["h0"].copy(), "next_value": outputs["next_value"]}
+def message(rollout: dict[str, np.ndarray], episode: int):
+    return rollout_message(rollout, host="test-host", episode=episode, weights_version=0, food=0.0)
 
 
 def snapshot(net) -> dict[str, torch.Tensor]:
@@ -97,43 +78,45 @@ def assert_same_weights(got: dict, want: dict) -> None:
 @pytest.fixture(scope="module")
 def experience(tmp_path_factory):
     """Two chunks collected with the initial weights (version 0), and the reference weights
-    after updating on the first, then the second."""
+    after the in-process learner's updates on the first, then the second."""
     torch.set_num_threads(1)
     tmp = tmp_path_factory.mktemp("trainer")
-    actor = Trainer(CFG, tmp / "actor", resume=False, log=quiet)
-    chunks = [collect(actor, episode) for episode in (0, 1)]
-    reference = Trainer(CFG, tmp / "reference", resume=False, log=quiet)
+    reference = Learner(CFG, tmp / "reference", resume=False, log=quiet)
+    actor_net = copy.deepcopy(reference.net)
+    chunks = [collect(actor_net, episode) for episode in (0, 1)]
     versions = [snapshot(reference.net)]
-    for collector, last_obs, outputs in chunks:
-        reference.rng.random(4)  # each chunk is an episode: the trainer's episode-start filter draw
-        update(reference.net, reference.optimizer, CFG, reference_data(collector, last_obs, outputs), reference.rng)
+    for rollout in chunks:
+        reference.learn(rollout)
         versions.append(snapshot(reference.net))
+    reference.writer.close()
     return {"tmp": tmp, "chunks": chunks, "versions": versions}
 
 
 def test_rollout_message_round_trip(experience):
-    collector, last_obs, _ = experience["chunks"][0]
-    msg = collector.to_message(last_obs, food=2.5)
+    rollout = experience["chunks"][0]
+    msg = message(rollout, 0)
     assert (msg.n_steps, msg.n_agents, msg.channels, msg.size) == (STEPS, 4, 8, 11)
-    got, want = rollout_arrays(msg), collector.arrays(last_obs)
-    assert got.keys() == want.keys()
-    for key in want:
-        assert np.array_equal(got[key], want[key]), key
+    got = rollout_arrays(msg)
+    assert set(got) == {"agent_ids", "obs", "actions", "rewards", "train_mask", "loss_mask", "value_mask",
+                        "sample_mask", "extra"}
+    for key in got:
+        assert np.array_equal(got[key], rollout[key]), key
     msg.rewards = msg.rewards[:-1]
     with pytest.raises(ValueError, match="Rollout.rewards"):
         rollout_arrays(msg)
 
 
 def test_learner_recomputes_the_behaviour_outputs_and_drops_stale_rollouts(experience, tmp_path):
-    """In process: the learner's update equals the reference; a rollout from weights it no
-    longer keeps is dropped."""
-    (collector, last_obs, _), second = experience["chunks"]
-    learner = Learner(CFG, tmp_path / "run", resume=False, max_lag=0, log=quiet)
-    assert learner.learn(collector.arrays(last_obs), weights_version=0, host="h", episode=0) is not None
+    """In process: the remote learner's update equals the reference; a rollout from weights it
+    no longer keeps is dropped."""
+    first, second = (rollout_arrays(message(rollout, episode)) for episode, rollout in enumerate(experience["chunks"]))
+    learner = RemoteLearner(CFG, tmp_path / "run", resume=False, max_lag=0, log=quiet)
+    assert learner.learn(first, weights_version=0, host="h", episode=0) is not None
     assert learner.version == 1
-    assert_same_weights(snapshot(learner.trainer.net), experience["versions"][1])
-    assert learner.learn(second[0].arrays(second[1]), weights_version=0, host="h", episode=1) is None
+    assert_same_weights(snapshot(learner.learner.net), experience["versions"][1])
+    assert learner.learn(second, weights_version=0, host="h", episode=1) is None
     assert learner.dropped == 1 and learner.version == 1
+    learner.close()
 
 
 def test_trainer_node_broadcasts_the_in_process_update(experience, monkeypatch):
@@ -173,8 +156,8 @@ def test_trainer_node_broadcasts_the_in_process_update(experience, monkeypatch):
             assert condition(), node_proc.stderr.read() if node_proc.poll() is not None else "timed out"
 
         wait_for(lambda: 0 in received and rollouts.get_subscription_count() > 0, 60)
-        for version, (collector, last_obs, _) in enumerate(experience["chunks"], start=1):
-            rollouts.publish(collector.to_message(last_obs, food=0.0))
+        for version, rollout in enumerate(experience["chunks"], start=1):
+            rollouts.publish(message(rollout, version - 1))
             wait_for(lambda v=version: v in received, 30)
         out, err = node_proc.communicate(timeout=30)
     finally:

@@ -241,7 +241,8 @@ def train(preset, run_dir, episodes, minutes, fresh, overrides, export) -> None:
     """Train a policy; checkpoints to RUN_DIR/latest.pt, TensorBoard logs to RUN_DIR/tb.
 
     Resumes from RUN_DIR/latest.pt when it exists. `--episodes 0 --export FILE` only exports."""
-    from formic_trainer.train import Trainer, export_model, make_config, parse_overrides
+    from formic_trainer.config import make_config, parse_overrides
+    from formic_trainer.train import Trainer, export_model
 
     try:
         cfg = make_config(preset, **parse_overrides(overrides))

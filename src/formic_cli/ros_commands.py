@@ -141,7 +141,7 @@ def world(scenario_file, policy_label, namespace, domain_id, deadline_ms, startu
         require_subscribers=tuple(require), progress=progress, view_port=view_port if live_view else None,
     )
     if train_config:
-        from formic_ros.trainer_node import load_train_config
+        from formic_trainer.config import load_train_config
         from formic_ros.world_node import require_one_world
 
         try:
@@ -197,8 +197,8 @@ def agents(ids, policy, model, greedy, transport, namespace, domain_id, name, th
     try:
         agent_ids = parse_ids(ids)
         if train_config:
-            from formic_ros.agent_host import serve_learning_agents
-            from formic_ros.trainer_node import load_train_config
+            from formic_ros.learning_host import serve_learning_agents
+            from formic_trainer.config import load_train_config
 
             if transport != "batched":
                 raise click.UsageError("learning mode (--train-config) needs --transport batched")

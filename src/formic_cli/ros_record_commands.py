@@ -146,10 +146,10 @@ def training_config(preset: str, config_file: str | None, overrides: tuple[str, 
     """``--preset`` (or a stored ``--train-config``) with ``--set`` overrides on top."""
     import dataclasses
 
-    from formic_trainer.train import make_config, parse_overrides
+    from formic_trainer.config import make_config, parse_overrides
 
     if config_file:
-        from formic_ros.trainer_node import load_train_config
+        from formic_trainer.config import load_train_config
 
         return dataclasses.replace(load_train_config(config_file), **parse_overrides(overrides))
     return make_config(preset, **parse_overrides(overrides))

@@ -37,7 +37,7 @@ from . import qos
 from .env import check_domain_id, ros_environment
 
 if TYPE_CHECKING:
-    from formic_trainer.train import TrainConfig
+    from formic_trainer.config import TrainConfig
 
 STOP_GRACE_S = (5.0, 3.0)  # after SIGINT, after SIGTERM; then SIGKILL
 RECORDER_GRACE_S = (20.0, 5.0)  # the recorder closes its file on SIGINT

@@ -45,7 +45,7 @@ from formic_world import NO_ACTION, Scenario, StepResult, World
 from . import convert, qos
 
 if TYPE_CHECKING:
-    from formic_trainer.train import TrainConfig
+    from formic_trainer.config import TrainConfig
 
 RESEND_S = 0.5  # step-0 observations are re-sent this often until every agent has answered
 STEP_RESEND_S = 0.25  # later steps: re-sent to the agents that have not answered after this long
@@ -437,12 +437,12 @@ def serve_training_world(
     on_episode: Callable[[dict], None] | None = None,
 ) -> list[dict]:
     """Distributed training's world: ``episodes`` episodes, each on a new scenario drawn as the
-    in-process trainer draws them (:func:`formic_trainer.train.sample_scenarios` from the
+    in-process trainer draws them (:func:`formic_trainer.worlds.sample_scenarios` from the
     run's scenario stream at ``first_episode``: world size, obstacles, curriculum intensities,
     training start), with the training masks in the observations. One meta-agent world: the
     configuration's ``teams`` must hold one team. ``on_episode`` gets each episode's summary
     (with ``episode``, the global episode number, and the curriculum's intensities)."""
-    from formic_trainer.train import sample_scenarios, scenario_rng
+    from formic_trainer.worlds import sample_scenarios, scenario_rng
 
     from .env import ros_session
 

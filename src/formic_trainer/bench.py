@@ -10,7 +10,8 @@ import torch
 
 from formic_agent.network import N_EXTRA_INPUTS, NETWORK_PRESETS, ForMICNet
 
-from .train import Trainer, make_config
+from .config import make_config
+from .train import Trainer
 
 
 def bench_policy(network: str, batch: int, threads: int, episodes: int = 1) -> dict:

@@ -1,0 +1,286 @@
+"""Distributed training's agent host: learning agents over ROS.
+
+:class:`HostActor` is :class:`formic_trainer.actor.Actor` (the very actor ``formic train``
+runs) over this host's agents, on the weights the trainer node broadcasts; its rollouts go
+to the trainer as Rollout messages. :class:`LearningHost` is the batched-transport node
+around it, :func:`serve_learning_agents` runs one.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+
+import numpy as np
+import rclpy
+import torch
+from formic_interfaces.msg import ActionBatch, ObservationBatch, Rollout, ScenarioDescription, Weights
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+from formic_agent.network import nest_features
+from formic_agent.policy import AgentBatch
+from formic_trainer.actor import Actor
+from formic_trainer.algorithm import training_network
+from formic_trainer.config import TrainConfig
+from formic_trainer.worlds import Frame, share_rewards
+
+from . import convert, qos
+from .agent_host import WorldWatch, read_scenario
+from .trainer_node import ROLLOUT_DEPTH, ROLLOUTS, WEIGHTS, apply_weights, rollout_message
+
+
+class HostActor:
+    """This host's agents as ``formic train``'s :class:`Actor`, made with the first weights
+    (their version seeds its streams). Per episode :meth:`start_episode`; per step :meth:`act`,
+    then :meth:`outcome`, which returns the chunk's Rollout message (tagged with the weights
+    version that acted and the food delivered) once it is complete. ``first_episode``: the
+    global number of the first episode (a resumed run's)."""
+
+    def __init__(self, cfg: TrainConfig, agent_ids, host: str = "", first_episode: int = 0):
+        self.cfg, self.host = cfg, host
+        self.ids = np.asarray(sorted(agent_ids), dtype=np.int64)
+        self.net = training_network(cfg)
+        self.actor: Actor | None = None
+        self.version = -1  # weights version loaded (-1: none yet)
+        self.chunk_version = -1  # the version that acted in the current chunk
+        self.episode = first_episode - 1  # global episode number
+        self.starting = False
+        self.food = 0.0
+        self.loads = np.zeros(len(self.ids))
+
+    def load_state_dict(self, state_dict: dict) -> None:
+        self.net.load_state_dict(state_dict)
+
+    def load_weights(self, msg) -> int:
+        self.version = apply_weights(self, msg)
+        if self.actor is None:
+            self.actor = Actor(self.cfg, self.net, self.ids, version=self.version)
+        return self.version
+
+    def start_episode(self, loads: np.ndarray) -> None:
+        self.episode += 1
+        self.starting = True  # the actor starts it at its first action (it may wait for weights)
+        self.food, self.loads = 0.0, np.asarray(loads, dtype=np.float64)
+
+    def act(self, batch: AgentBatch, train_mask: np.ndarray) -> np.ndarray:
+        """Actions for every agent of the batch (rows in id order); needs weights."""
+        if self.starting:
+            self.actor.start_episode(self.episode)
+            self.starting = False
+        if not len(self.actor):
+            self.chunk_version = self.version
+        extra = nest_features(batch.positions, batch.loads, batch.world_shape)
+        return self.actor.act(Frame(batch.observations, extra, batch.action_mask, train_mask,
+                                    np.asarray(batch.queued, dtype=bool)))
+
+    def outcome(self, batch: AgentBatch, team_rewards: np.ndarray, rows: np.ndarray, done: bool):
+        """The observations after a step (``team_rewards``: every agent's; ``rows``: this
+        host's); returns the Rollout message when the chunk is complete, else None."""
+        self.actor.reward(share_rewards(team_rewards, self.cfg.team_reward)[rows])
+        loads = np.asarray(batch.loads, dtype=np.float64)
+        self.food += float(np.clip(self.loads - loads, 0.0, None).sum())  # every agent's deliveries
+        self.loads = loads
+        if not done and len(self.actor) < self.cfg.rollout_steps:
+            return None
+        extra = nest_features(batch.positions, batch.loads, batch.world_shape)
+        rollout = self.actor.rollout(batch.observations, extra, bootstrap=False)
+        food, self.food = self.food, 0.0
+        if not len(self.actor.learning):  # none of these agents learns: nothing to send
+            return None
+        return rollout_message(rollout, self.host, self.episode, self.chunk_version, food,
+                               extra=self.net.config.nest_input)
+
+
+SWITCH_MODES = ("chunk", "episode")
+WEIGHTS_WAIT_LOG_S = 10.0  # while a host waits for weights, it says so this often
+
+
+class LearningHost:
+    """A batched-transport host whose agents learn (distributed training).
+
+    The agents act as the in-process trainer's do (:class:`HostActor`: its actor, LSTM
+    states and sampler under the training filter, which needs the world's ``train_masks``:
+    run the world with ``--training-masks``); each chunk of ``rollout_steps`` steps of the
+    learning agents goes to the trainer as a Rollout. Weights come from the trainer's latched
+    ``weights`` topic. ``switch="chunk"``: after each rollout the host waits for the weights
+    that rollout produced and acts on with them, exactly as the in-process trainer updates
+    after each chunk (on-policy; same seeds and settings give the same learning curve).
+    ``switch="episode"``: an episode is played with one weights version while the trainer
+    learns from its first chunks; at the next episode's start the host waits for the updates
+    of all its rollouts and takes the newest weights (the trainer corrects for the lag with the
+    behaviour version's outputs; with one host the lag stays below the chunks per episode).
+
+    An episode starts at step 0 of a scenario the host has not played yet: observations of a
+    new episode that arrive before its (latched) scenario are held until it does.
+    """
+
+    def __init__(self, agent_ids: list[int], cfg: TrainConfig, switch: str = "chunk", first_episode: int = 0,
+                 namespace: str = qos.DEFAULT_NAMESPACE, name: str | None = None, torch_threads: int = 1):
+
+        if switch not in SWITCH_MODES:
+            raise ValueError(f"unknown weights switch {switch!r}; choose from {', '.join(SWITCH_MODES)}")
+        torch.set_num_threads(torch_threads)
+        self.switch = switch
+        self.control = rclpy.create_node(name or f"agent_host_{os.getpid()}", namespace=namespace)
+        self.nodes = [self.control]
+        self.log = self.control.get_logger()
+        self.actor = HostActor(cfg, agent_ids, host=self.control.get_name(), first_episode=first_episode)
+        self.ids = self.actor.ids
+        node = self.control
+        node.create_subscription(ScenarioDescription, qos.SCENARIO, self._on_scenario, qos.LATCHED)
+        node.create_subscription(ObservationBatch, qos.OBSERVATIONS, self._on_batch, qos.STREAM)
+        node.create_subscription(Weights, WEIGHTS, self._on_weights, qos.LATCHED)
+        self.actions_pub = node.create_publisher(ActionBatch, qos.ACTIONS, qos.STREAM)
+        self.rollouts_pub = node.create_publisher(
+            Rollout, ROLLOUTS, QoSProfile(depth=ROLLOUT_DEPTH, reliability=ReliabilityPolicy.RELIABLE))
+        self.played = ""  # scenario of the episode being (or last) played
+        self.next_scenario = ""  # a scenario not played yet
+        self.scenario_json = ""  # the newest scenario seen (for WorldWatch)
+        self.playing = False
+        self.episodes = 0  # episodes finished
+        self.episode_rollouts = 0  # rollouts sent in the current episode
+        self.held: ObservationBatch | None = None  # newest observations not dealt with yet
+        self.ready = None  # (AgentBatch, training masks) to act on once the weights allow
+        self.newest = None  # the newest Weights message received
+        self.wait_version: int | None = -1  # act only with weights newer than this (None: act now)
+        self.answered_step, self.answer = -1, np.zeros(0, dtype=np.int64)
+        self.waiting_since = time.monotonic()
+        self.warned_masks = False
+
+    # ------------------------------------------------------------------------ inputs
+    def _on_scenario(self, msg: ScenarioDescription) -> None:
+        if msg.scenario_json in (self.scenario_json, self.played) or (scenario := read_scenario(msg, self.log)) is None:
+            return
+        self.scenario_json = self.next_scenario = msg.scenario_json
+        if (self.ids >= scenario.config.n_agents).any():
+            self.log.error(f"agents {self.ids.tolist()} are not all in this team of {scenario.config.n_agents}")
+        self.pump()
+
+    def _on_weights(self, msg) -> None:
+        if self.newest is None or msg.version > self.newest.version:
+            self.newest = msg
+            self.pump()
+
+    def _on_batch(self, msg: ObservationBatch) -> None:
+        self.held = msg
+        self.pump()
+
+    # ---------------------------------------------------------------------- stepping
+    def _rows(self, msg: ObservationBatch) -> np.ndarray | None:
+        """Rows of this host's agents in the message, in id order; None unless all are there."""
+        ids = convert.read(msg.agent_ids, np.uint32).astype(np.int64)
+        lookup = np.full(max(int(ids.max(initial=-1)), int(self.ids.max())) + 1, -1, dtype=np.int64)
+        lookup[ids] = np.arange(len(ids))
+        rows = lookup[self.ids]
+        return rows if (rows >= 0).all() else None
+
+    def _take(self, msg: ObservationBatch) -> bool:
+        """Deal with a received observation batch; False to keep holding it (a new episode's
+        step 0 before its scenario)."""
+        rows = self._rows(msg)
+        if rows is None:
+            return True  # a re-send for other hosts' agents
+        step = int(msg.step)
+        if self.ready is not None and step == self.ready[0].step and not msg.done:
+            return True  # a re-send of what waits for weights
+        if self.playing and step == 0 and self.next_scenario and not msg.done:
+            self.log.warning("a new episode started before this one ended: its last chunk is dropped")
+            self.playing = False
+        if self.playing and step == self.answered_step and not msg.done:
+            self.actions_pub.publish(convert.action_batch(step, self.ids, self.answer))  # a re-send
+            return True
+        if not self.playing:
+            if msg.done or step != 0:
+                return True  # the end or the middle of an episode this host did not play
+            if not self.next_scenario:
+                return False
+        elif step != self.answered_step + 1:
+            return True  # stale
+        if not len(msg.train_masks):
+            if not self.warned_masks:
+                self.log.error("the observations carry no training masks: run the world with --training-masks")
+                self.warned_masks = True
+            return True
+        batch = convert.batch_from_observation_batch(msg, rows)
+        if not self.playing:
+            self._start_episode(batch)
+        else:
+            team_rewards = convert.read(msg.rewards, np.float32)  # every agent's: for team_reward
+            rollout = self.actor.outcome(batch, team_rewards, rows, bool(msg.done))
+            if rollout is not None:
+                self.rollouts_pub.publish(rollout)
+                self.episode_rollouts += 1
+                if self.switch == "chunk":  # act on with the weights this rollout makes
+                    self.wait_version, self.waiting_since = self.actor.version, time.monotonic()
+                elif msg.done:  # start the next episode with the weights all of this one's make
+                    self.wait_version = self.actor.version + self.episode_rollouts - 1
+                    self.waiting_since = time.monotonic()
+            if msg.done:
+                self.playing = False
+                self.episodes += 1
+                return True
+        masks = convert.read(msg.train_masks, np.uint8).reshape(-1, convert.ACTION_COUNT)[rows].astype(bool)
+        self.ready = (batch, masks)
+        return True
+
+    def _start_episode(self, batch: AgentBatch) -> None:
+        self.played, self.next_scenario = self.next_scenario, ""
+        self.playing, self.answered_step, self.episode_rollouts = True, -1, 0
+        self.actor.start_episode(batch.loads)
+
+    def _weights_ready(self) -> bool:
+        if self.wait_version is None:
+            return True
+        if self.newest is None or self.newest.version <= self.wait_version:
+            if time.monotonic() - self.waiting_since > WEIGHTS_WAIT_LOG_S:
+                self.log.warning(f"still waiting for weights newer than version {self.wait_version}")
+                self.waiting_since = time.monotonic()
+            return False
+        self.actor.load_weights(self.newest)
+        self.wait_version = None
+        return True
+
+    def pump(self) -> None:
+        """Deal with what has arrived: the held observations, then acting when the weights allow."""
+        if self.held is not None and self._take(self.held):
+            self.held = None
+        if self.ready is None or not self._weights_ready():
+            return
+        batch, masks = self.ready
+        self.ready = None
+        self.answer = self.actor.act(batch, masks)
+        self.answered_step = batch.step
+        self.actions_pub.publish(convert.action_batch(batch.step, self.ids, self.answer))
+
+
+def serve_learning_agents(
+    agent_ids: list[int],
+    cfg: TrainConfig,
+    switch: str = "chunk",
+    first_episode: int = 0,
+    namespace: str = qos.DEFAULT_NAMESPACE,
+    name: str | None = None,
+    episodes: int | None = None,
+    domain_id: int | None = None,
+    torch_threads: int = 1,
+) -> int:
+    """Host learning agents until interrupted (or until ``episodes`` episodes are played and
+    their rollouts delivered, or the world is gone); returns the episodes played."""
+    from rclpy.duration import Duration
+
+    from .env import ros_session
+
+    with ros_session(domain_id) as executor:
+        host = LearningHost(agent_ids, cfg, switch=switch, first_episode=first_episode, namespace=namespace,
+                            name=name, torch_threads=torch_threads)
+        for node in host.nodes:
+            executor.add_node(node)
+        watch = WorldWatch(host.control)
+        try:
+            while not (episodes is not None and (host.episodes >= episodes or watch.gone(host.scenario_json))):
+                executor.spin_once(timeout_sec=0.2)
+                host.pump()  # also says so when the weights are late
+            host.rollouts_pub.wait_for_all_acked(Duration(seconds=5.0))
+        except KeyboardInterrupt:
+            pass
+        return host.episodes

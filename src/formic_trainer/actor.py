@@ -1,0 +1,151 @@
+"""The actor: a set of agents (team-wide ids, in order) acting under the training filter.
+
+One LSTM state per agent, a torch sampler and a numpy stream of its own (the episode's
+unfiltered agents under filter annealing, the "replace" filter's replacements), seeded from
+the weights version it starts with (:func:`actor_streams`), and one rollout buffer for its
+learning agents. Per episode :meth:`Actor.start_episode`; per step :meth:`Actor.act`, then
+:meth:`Actor.reward`; at a chunk's end :meth:`Actor.rollout`, for the learner. ``formic
+train`` runs one over all its worlds' agents, a ROS learning host one over its agents.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from formic_agent.network import ForMICNet
+
+from .algorithm import sampling_mask
+from .config import TrainConfig
+from .worlds import Frame
+
+SAMPLER_STRIDE = 1_000_003  # streams of actors whose first agents differ never meet
+
+
+def actor_streams(cfg: TrainConfig, version: int, first_agent: int = 0) -> tuple[torch.Generator, np.random.Generator]:
+    """The torch sampler and the numpy stream of an actor that starts acting with weights
+    ``version`` and whose first agent is ``first_agent``."""
+    generator = torch.Generator().manual_seed(cfg.seed + int(version) + SAMPLER_STRIDE * int(first_agent))
+    return generator, np.random.default_rng([cfg.seed, 4, int(version), int(first_agent)])
+
+
+def learning_rows(cfg: TrainConfig, ids: np.ndarray) -> np.ndarray:
+    """Rows of ``ids`` (team-wide agent ids over the meta-agent worlds) whose agents learn:
+    the first ``learning_agents`` of each world (all when it is negative)."""
+    ids = np.asarray(ids, dtype=np.int64)
+    if cfg.learning_agents < 0:
+        return np.arange(len(ids))
+    offsets = np.cumsum([0, *cfg.teams])
+    world = np.clip(np.searchsorted(offsets, ids, side="right") - 1, 0, len(cfg.teams) - 1)
+    return np.flatnonzero(ids - offsets[world] < cfg.learning_agents)
+
+
+def filter_probability(cfg: TrainConfig, episode: int) -> float:
+    """Probability that an agent-episode acts under the training filter."""
+    start, end = cfg.filter_anneal_start, cfg.filter_anneal_end
+    if end <= start:
+        return 1.0
+    fraction = min(max((episode - start) / (end - start), 0.0), 1.0)
+    return 1.0 + fraction * (cfg.filter_final - 1.0)
+
+
+def select_actions(cfg: TrainConfig, logits: torch.Tensor, train_mask: np.ndarray, generator: torch.Generator,
+                   rng: np.random.Generator,
+                   sample_mask: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Sample actions under the training filter. Returns (actions, log-probs, value_mask).
+    In "mask" mode ``sample_mask`` (default: ``sampling_mask``) says what may be sampled."""
+    if cfg.action_filter == "mask":
+        allowed = sampling_mask(cfg, train_mask) if sample_mask is None else sample_mask
+        masked = logits.masked_fill(~torch.from_numpy(allowed), -1e9)
+        probs = torch.softmax(masked, -1)
+        actions = torch.multinomial(probs, 1, generator=generator)[:, 0]
+        logp = torch.log_softmax(masked, -1).gather(-1, actions[:, None])[:, 0]
+        return actions.numpy(), logp.numpy(), np.ones(len(actions), dtype=np.float32)
+    probs = torch.softmax(logits, -1)
+    actions = torch.multinomial(probs, 1, generator=generator)[:, 0].numpy().copy()
+    value_mask = np.ones(len(actions), dtype=np.float32)
+    if cfg.action_filter == "replace":
+        rows = np.arange(len(actions))
+        invalid = ~train_mask[rows, actions] & train_mask.any(1)
+        for i in np.flatnonzero(invalid):
+            actions[i] = rng.choice(np.flatnonzero(train_mask[i]))
+        value_mask[invalid] = 0.0
+    logp = torch.log_softmax(logits, -1).gather(-1, torch.from_numpy(actions)[:, None])[:, 0]
+    return actions, logp.numpy(), value_mask
+
+
+class Actor:
+    def __init__(self, cfg: TrainConfig, net: ForMICNet, agent_ids, version: int = 0):
+        self.cfg, self.net = cfg, net
+        self.ids = np.asarray(agent_ids, dtype=np.int64)
+        self.learning = learning_rows(cfg, self.ids)
+        self.generator, self.rng = actor_streams(cfg, version, int(self.ids[0]) if len(self.ids) else 0)
+        self.unfiltered = np.zeros(len(self.ids), dtype=bool)
+        self.state = net.initial_state(len(self.ids))
+        self.valid_rate: list[float] = []  # per step: share of free agents whose action was valid
+        self._new_chunk()
+
+    def __len__(self) -> int:
+        """Steps in the current chunk."""
+        return len(self.chunk["actions"])
+
+    def start_episode(self, episode: int) -> None:
+        """A new episode (global number ``episode``): fresh LSTM states, and which agents act
+        unfiltered in it (filter annealing)."""
+        self.unfiltered = self.rng.random(len(self.ids)) >= filter_probability(self.cfg, episode)
+        self.state = self.net.initial_state(len(self.ids))
+        self.valid_rate = []
+        self._new_chunk()
+
+    def _new_chunk(self) -> None:
+        self.chunk: dict[str, list[np.ndarray]] = {key: [] for key in (
+            "obs", "extra", "actions", "logp", "values", "rewards", "train_mask", "sample_mask", "loss_mask",
+            "value_mask", "expert_actions", "imitation_mask")}
+        h, c = self.state
+        self.h0, self.c0 = h[:, self.learning].numpy().copy(), c[:, self.learning].numpy().copy()
+
+    @torch.no_grad()
+    def act(self, frame: Frame) -> np.ndarray:
+        """Actions for every agent (rows as ``agent_ids``), sampled under the training filter."""
+        obs = torch.from_numpy(np.ascontiguousarray(frame.obs))[None]
+        logits, values, self.state = self.net(obs, self.state, torch.from_numpy(frame.extra)[None])
+        allowed = sampling_mask(self.cfg, frame.train_mask)
+        allowed[self.unfiltered] = True
+        actions, logp, value_mask = select_actions(self.cfg, logits[0], frame.train_mask, self.generator, self.rng,
+                                                   sample_mask=allowed)
+        free = ~frame.queued
+        self.valid_rate.append(float(frame.valid[free, actions[free]].mean()) if free.any() else 1.0)
+        step = {"obs": frame.obs, "extra": frame.extra, "actions": actions.astype(np.int64), "logp": logp,
+                "values": values[0].numpy(), "train_mask": frame.train_mask, "sample_mask": allowed,
+                "loss_mask": free.astype(np.float32), "value_mask": value_mask}
+        for key, value in step.items():
+            self.chunk[key].append(value[self.learning])
+        return actions
+
+    def demonstrate(self, expert_actions: np.ndarray, wanted: np.ndarray) -> None:
+        """The demonstrator's actions of the last step and which of them are imitation targets."""
+        self.chunk["expert_actions"].append(expert_actions[self.learning].astype(np.int64))
+        self.chunk["imitation_mask"].append(wanted[self.learning].astype(np.float32))
+
+    def reward(self, rewards: np.ndarray) -> None:
+        """The rewards of the last step, every agent's (rows as ``agent_ids``), unscaled."""
+        self.chunk["rewards"].append(np.asarray(rewards)[self.learning].astype(np.float32))
+
+    @torch.no_grad()
+    def rollout(self, obs: np.ndarray, extra: np.ndarray, bootstrap: bool = True) -> dict[str, np.ndarray]:
+        """The chunk's rollout of the learning agents, given what every agent sees after its
+        last step (``obs``, ``extra``: rows as ``agent_ids``), and a new chunk. With
+        ``bootstrap`` it carries the value of that last frame (``next_value``)."""
+        rows = self.learning
+        if len(self.chunk["rewards"]) != len(self) or not len(self):
+            raise RuntimeError("a rollout needs at least one step, each with its rewards")
+        self.chunk["obs"].append(obs[rows])  # the last frame, for bootstrapping
+        self.chunk["extra"].append(extra[rows])
+        chunk = {key: np.stack(values) for key, values in self.chunk.items() if values}
+        chunk.update(agent_ids=self.ids[rows], h0=self.h0, c0=self.c0)
+        if bootstrap:
+            _, next_value, _ = self.net(torch.from_numpy(np.ascontiguousarray(obs))[None], self.state,
+                                        torch.from_numpy(extra)[None])
+            chunk["next_value"] = next_value[0].numpy()[rows]
+        self._new_chunk()
+        return chunk

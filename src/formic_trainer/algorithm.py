@@ -1,0 +1,189 @@
+"""The algorithm (SPEC §6: actor-critic, loss = L_pi (entropy bonus) + 0.5 L_V + 0.5 L_valid,
+queued steps masked out; the ``cpu`` preset adds PPO clipping and GAE): network, sampling
+mask, loss terms, GAE, one update, the optimiser and its learning rate."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from formic_agent.network import NETWORK_PRESETS, ForMICNet
+
+from .config import TrainConfig
+
+
+def training_network(cfg: TrainConfig) -> ForMICNet:
+    """The network as training builds it (channels-last memory format: the same format gives
+    the same arithmetic, so a learning host acts bit for bit as the in-process actor)."""
+    config = dataclasses.replace(NETWORK_PRESETS[cfg.network], view_size=cfg.view_size)
+    return ForMICNet(config).to(memory_format=torch.channels_last)
+
+
+def sampling_mask(cfg: TrainConfig, train_mask):
+    """Actions the behaviour policy may sample in "mask" mode (numpy or torch)."""
+    if cfg.mask_join:
+        return train_mask
+    allowed = train_mask.clone() if isinstance(train_mask, torch.Tensor) else train_mask.copy()
+    allowed[..., 4] = True
+    return allowed
+
+
+def policy_losses(
+    net: ForMICNet, cfg: TrainConfig, batch: dict[str, torch.Tensor]
+) -> dict[str, torch.Tensor]:
+    """All loss terms over a batch of agent sequences (T, B, ...) from their initial state."""
+    logits, values, _ = net(batch["obs"], (batch["h0"], batch["c0"]), batch["extra"])
+    if cfg.action_filter == "mask":
+        allowed = batch["sample_mask"] if "sample_mask" in batch else sampling_mask(cfg, batch["train_mask"])
+        logits_for_pi = logits.masked_fill(~allowed, -1e9)
+    else:
+        logits_for_pi = logits
+    log_probs = torch.log_softmax(logits_for_pi, dim=-1)
+    logp = log_probs.gather(-1, batch["actions"].unsqueeze(-1)).squeeze(-1)
+    entropy = -(log_probs.exp() * log_probs).sum(-1)
+    loss_mask = batch["loss_mask"]
+    value_mask = loss_mask * batch["value_mask"]
+    adv = batch["advantages"]
+    if cfg.clip > 0:
+        ratio = torch.exp(logp - batch["logp"])
+        pg = -torch.min(ratio * adv, torch.clamp(ratio, 1 - cfg.clip, 1 + cfg.clip) * adv)
+    else:
+        pg = -logp * adv
+    value_err = 0.5 * (values - batch["returns"]) ** 2
+    if cfg.valid_loss == "mass":
+        move_logp = torch.log_softmax(logits[..., :4], dim=-1).masked_fill(~batch["train_mask"][..., :4], -1e9)
+        valid_term = -torch.logsumexp(move_logp, dim=-1).clamp(max=1e8)
+    else:
+        valid_term = F.binary_cross_entropy_with_logits(
+            logits, batch["train_mask"].float(), reduction="none"
+        )
+        valid_term = valid_term[..., :4].sum(-1) if cfg.valid_actions == "moves" else valid_term.sum(-1)
+
+    def reduce(x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        total = (x * mask).sum()
+        return total if cfg.loss_reduction == "sum" else total / mask.sum().clamp(min=1.0)
+
+    terms = {
+        "policy": reduce(pg, loss_mask),
+        "value": reduce(value_err, value_mask),
+        "entropy": reduce(entropy, loss_mask),
+        "valid": reduce(valid_term * batch["any_valid"], loss_mask),
+    }
+    terms["loss"] = (
+        terms["policy"] - cfg.entropy_coef * terms["entropy"]
+        + cfg.value_coef * terms["value"] + cfg.valid_coef * terms["valid"]
+    )
+    if "expert_actions" in batch:  # the agents' own unmasked policy, as it acts at test time
+        own = torch.log_softmax(logits, dim=-1)
+        imitation_mask = batch["imitation_mask"]
+        terms["imitation"] = reduce(-own.gather(-1, batch["expert_actions"].unsqueeze(-1)).squeeze(-1), imitation_mask)
+        terms["loss"] = terms["loss"] + cfg.imitation_coef * terms["imitation"]
+        with torch.no_grad():
+            agree = (logits.argmax(-1) == batch["expert_actions"]).float()
+            terms["expert_agreement"] = (agree * imitation_mask).sum() / imitation_mask.sum().clamp(min=1.0)
+    with torch.no_grad():
+        predicted = torch.sigmoid(logits) > 0.5
+        agree = (predicted == batch["train_mask"])[..., :4].all(-1).float()
+        terms["valid_accuracy"] = (agree * loss_mask).sum() / loss_mask.sum().clamp(min=1.0)
+        if cfg.clip > 0:
+            terms["clip_fraction"] = (((ratio - 1).abs() > cfg.clip).float() * loss_mask).sum() / loss_mask.sum().clamp(min=1.0)
+    return terms
+
+
+def advantages_and_returns(cfg: TrainConfig, rewards, values, next_value) -> tuple[np.ndarray, np.ndarray]:
+    """GAE over a chunk (T, B); lambda=1 gives the paper's bootstrapped discounted returns.
+    An episode is truncated by time, so the last step always bootstraps from next_value."""
+    steps = rewards.shape[0]
+    adv = np.zeros_like(rewards)
+    last = np.zeros(rewards.shape[1], dtype=np.float32)
+    for t in reversed(range(steps)):
+        nxt = next_value if t == steps - 1 else values[t + 1]
+        delta = rewards[t] + cfg.gamma * nxt - values[t]
+        last = delta + cfg.gamma * cfg.gae_lambda * last
+        adv[t] = last
+    return adv, adv + values
+
+
+def update(net: ForMICNet, optimizer: torch.optim.Optimizer, cfg: TrainConfig, data: dict[str, np.ndarray],
+           rng: np.random.Generator) -> dict[str, float]:
+    """One update from a rollout chunk: the same function serves the in-process trainer and
+    the ROS trainer node. ``data`` arrays are time-major (T, B, ...)."""
+    adv, returns = advantages_and_returns(cfg, data["rewards"], data["values"], data["next_value"])
+    tensors = {
+        "obs": torch.from_numpy(data["obs"]),
+        "extra": torch.from_numpy(data["extra"]),
+        "actions": torch.from_numpy(data["actions"]).long(),
+        "logp": torch.from_numpy(data["logp"]),
+        "train_mask": torch.from_numpy(data["train_mask"]),
+        **({"sample_mask": torch.from_numpy(data["sample_mask"])} if "sample_mask" in data else {}),
+        "any_valid": torch.from_numpy(data["train_mask"][..., :4].any(-1).astype(np.float32)),
+        "loss_mask": torch.from_numpy(data["loss_mask"]).float(),
+        "value_mask": torch.from_numpy(data["value_mask"]).float(),
+        "returns": torch.from_numpy(returns.astype(np.float32)),
+        "h0": torch.from_numpy(data["h0"]),
+        "c0": torch.from_numpy(data["c0"]),
+    }
+    if "expert_actions" in data:
+        tensors["expert_actions"] = torch.from_numpy(data["expert_actions"]).long()
+        tensors["imitation_mask"] = torch.from_numpy(data["imitation_mask"]).float()
+    adv_t = torch.from_numpy(adv.astype(np.float32))
+    if cfg.normalize_advantages:
+        m = tensors["loss_mask"]
+        mean = (adv_t * m).sum() / m.sum().clamp(min=1)
+        std = torch.sqrt((((adv_t - mean) ** 2) * m).sum() / m.sum().clamp(min=1)) + 1e-8
+        adv_t = (adv_t - mean) / std
+    tensors["advantages"] = adv_t
+    n_seq = tensors["obs"].shape[1]
+    stats: dict[str, list[float]] = {}
+    for _ in range(cfg.epochs):
+        order = rng.permutation(n_seq)
+        for chunk in np.array_split(order, cfg.minibatches):
+            idx = torch.from_numpy(chunk)
+            batch = {k: v[:, idx] for k, v in tensors.items()}
+            terms = policy_losses(net, cfg, batch)
+            optimizer.zero_grad()
+            terms["loss"].backward()
+            grad_norm = torch.nn.utils.clip_grad_norm_(net.parameters(), cfg.max_grad_norm)
+            optimizer.step()
+            terms["grad_norm"] = grad_norm
+            for k, v in terms.items():
+                stats.setdefault(k, []).append(float(v.detach()) if torch.is_tensor(v) else float(v))
+    return {k: float(np.mean(v)) for k, v in stats.items()}
+
+
+def set_learning_rate(optimizer: torch.optim.Optimizer, cfg: TrainConfig, updates: int) -> None:
+    """The learning rate of update number ``updates`` (0-based): ``lr``, ramped up linearly
+    over the first ``lr_warmup`` updates."""
+    scale = min(1.0, (updates + 1) / cfg.lr_warmup) if cfg.lr_warmup > 0 else 1.0
+    for group in optimizer.param_groups:
+        group["lr"] = cfg.lr * scale
+
+
+def make_optimizer(net: ForMICNet, cfg: TrainConfig) -> torch.optim.Optimizer:
+    if cfg.optimizer == "nadam":
+        return torch.optim.NAdam(net.parameters(), lr=cfg.lr)
+    if cfg.optimizer == "adam":
+        return torch.optim.Adam(net.parameters(), lr=cfg.lr, eps=1e-5)
+    raise ValueError(f"unknown optimizer {cfg.optimizer!r}")  # TrainConfig checks it
+
+
+def scale_rewards(rewards: np.ndarray, scale: float) -> np.ndarray:
+    """The reward scaling, in float64 from the float32 rewards a rollout carries."""
+    return (np.asarray(rewards, dtype=np.float32).astype(np.float64) * scale).astype(np.float32)
+
+
+UPDATE_KEYS = ("actions", "logp", "values", "train_mask", "sample_mask", "loss_mask", "value_mask", "h0", "c0",
+               "next_value", "expert_actions", "imitation_mask")
+
+
+def update_data(cfg: TrainConfig, rollout: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """What :func:`update` takes, from a rollout (T+1 observation frames, T of the rest, the
+    behaviour policy's log-probabilities, values, bootstrap value and initial LSTM state)."""
+    steps = rollout["actions"].shape[0]
+    data = {"obs": rollout["obs"][:steps], "extra": rollout["extra"][:steps],
+            "rewards": scale_rewards(rollout["rewards"], cfg.reward_scale)}
+    data.update({key: rollout[key] for key in UPDATE_KEYS if key in rollout})
+    return data

@@ -1,0 +1,117 @@
+"""The learner: network, optimiser, counters (the weights version is the updates so far),
+its own random stream (minibatch permutations), checkpoints, resume and the TensorBoard log.
+:meth:`Learner.learn` makes one update from an actor's rollout. ``formic train`` and the ROS
+trainer node (``formic train-ros``) both drive it."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from formic_agent.checkpoint import load_network, read_checkpoint, save_checkpoint
+
+from .algorithm import make_optimizer, set_learning_rate, training_network, update, update_data
+from .config import TrainConfig, plain
+
+# settings a run may change when it resumes
+RESUMABLE = frozenset({"total_episodes", "threads", "checkpoint_every", "init_weights"})
+
+
+def learner_stream(cfg: TrainConfig, updates: int) -> np.random.Generator:
+    """The learner's random stream (minibatch permutations) of a run at ``updates`` updates."""
+    return np.random.default_rng([cfg.seed, 5, int(updates)])
+
+
+class Learner:
+    def __init__(self, cfg: TrainConfig, run_dir: Path, resume: bool = True, log: Callable[[str], None] = print):
+        self.cfg = cfg
+        self.run_dir = Path(run_dir)
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        self.log = log
+        torch.set_num_threads(cfg.threads)
+        torch.manual_seed(cfg.seed)
+        self.net = training_network(cfg)
+        self.optimizer = make_optimizer(self.net, cfg)
+        self.episode = 0  # global environment episodes finished
+        self.episode_sets = 0  # ends of episodes (sets) reported in this process
+        self.updates = 0
+        self.env_steps = 0
+        self.seconds = 0.0
+        latest = self.run_dir / "latest.pt"
+        if resume and latest.exists():
+            self._resume(latest)
+        elif cfg.init_weights:
+            net, _ = load_network(cfg.init_weights)
+            self.net.load_state_dict(net.state_dict())
+            self.log(f"network initialised from {cfg.init_weights}")
+        self.rng = learner_stream(cfg, self.updates)
+        (self.run_dir / "config.json").write_text(json.dumps(cfg.to_dict(), indent=2))
+        from torch.utils.tensorboard import SummaryWriter
+
+        self.writer = SummaryWriter(str(self.run_dir / "tb"))
+        self.writer.add_text("config", json.dumps(cfg.to_dict(), indent=2))
+
+    @property
+    def version(self) -> int:
+        """The weights version: updates made so far."""
+        return self.updates
+
+    def _resume(self, path: Path) -> None:
+        payload = read_checkpoint(path)
+        stored = payload.get("train_config", {})
+        changed = sorted(k for k, v in self.cfg.to_dict().items()
+                         if k not in RESUMABLE and k in stored and plain(stored[k]) != plain(v))
+        if changed:
+            raise ValueError(
+                f"{path} was trained with different settings ({', '.join(changed)}); "
+                "use the same settings, a new --run-dir, or --fresh"
+            )
+        self.net.load_state_dict(payload["state_dict"])
+        self.optimizer.load_state_dict(payload["optimizer"])
+        progress = payload["progress"]
+        self.episode, self.updates = progress["episode"], progress["updates"]
+        self.env_steps, self.seconds = progress["env_steps"], progress["seconds"]
+        self.log(f"resumed from {path}: episode {self.episode}, update {self.updates}")
+
+    def learn(self, rollout: dict[str, np.ndarray], env_steps: int | None = None) -> dict[str, float]:
+        """One update from one rollout; ``env_steps``: the agent-steps it stands for (default:
+        its learning agents')."""
+        set_learning_rate(self.optimizer, self.cfg, self.updates)
+        stats = update(self.net, self.optimizer, self.cfg, update_data(self.cfg, rollout), self.rng)
+        self.updates += 1
+        self.env_steps += int(rollout["actions"].size if env_steps is None else env_steps)
+        return stats
+
+    def end_episodes(self, episodes: int, stats: dict[str, float], seconds: float = 0.0) -> None:
+        """``episodes`` environment episodes have ended (one episode set): their statistics go
+        to the log under ``train/``, and the checkpoint is written every ``checkpoint_every``."""
+        self.episode += episodes
+        self.episode_sets += 1
+        self.seconds += seconds
+        self.record("train", stats, self.episode)
+        if self.seconds > 0:
+            self.writer.add_scalar("train/agent_steps_per_s", self.env_steps / self.seconds, self.episode)
+        self.writer.flush()
+        if self.episode_sets % self.cfg.checkpoint_every == 0:
+            self.save()
+
+    def record(self, prefix: str, stats: dict[str, float], step: int) -> None:
+        for key, value in stats.items():
+            self.writer.add_scalar(f"{prefix}/{key}", value, step)
+
+    def save(self, name: str = "latest.pt") -> None:
+        save_checkpoint(
+            self.run_dir / name, self.net,
+            optimizer=self.optimizer.state_dict(),
+            train_config=self.cfg.to_dict(),
+            progress={"episode": self.episode, "updates": self.updates, "env_steps": self.env_steps,
+                      "seconds": self.seconds},
+        )
+
+    def close(self) -> None:
+        self.save()
+        self.writer.close()

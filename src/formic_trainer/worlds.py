@@ -1,0 +1,126 @@
+"""The training worlds: scenarios per episode set (also the ROS world node's), and the
+meta-agent worlds stepped together with their team rewards and demonstrators."""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from formic_agent.network import nest_features
+from formic_agent.policy import AgentBatch
+from formic_runtime.registry import make_policy
+from formic_world import REWARD_PRESETS, Scenario, World, WorldConfig, generate_scenario
+from formic_world.pheromones import curriculum_intensities
+
+from .config import TrainConfig
+
+
+class Frame(NamedTuple):
+    """What agents (rows) see at one step: observations, odometry inputs, valid actions (the
+    environment's, the training filter's), queued or not."""
+
+    obs: np.ndarray
+    extra: np.ndarray
+    valid: np.ndarray
+    train_mask: np.ndarray
+    queued: np.ndarray
+
+
+def scenario_rng(cfg: TrainConfig, episode: int) -> np.random.Generator:
+    """The scenario stream of a run that starts (or resumes) at global ``episode``."""
+    return np.random.default_rng([cfg.seed, 3, episode])
+
+
+def sample_scenarios(cfg: TrainConfig, rng: np.random.Generator,
+                     episode: int) -> tuple[list[Scenario], float, float]:
+    """One episode set's scenarios, one per meta-agent world (random side, obstacle density
+    and seed, drawn from ``rng`` in that order), with the curriculum's pheromone intensities
+    at global ``episode``. Returns (scenarios, highway intensity, deposit strength). The
+    in-process trainer and the ROS world node (distributed training) both draw from here."""
+    if cfg.curriculum and cfg.pheromones:
+        highway, deposit = curriculum_intensities(episode, cfg.curriculum_start, cfg.curriculum_end)
+    else:
+        highway, deposit = 0.0, 1.0
+    scenarios = []
+    for team, (lo, hi) in zip(cfg.teams, cfg.world_sizes):
+        side = 2 * int(rng.integers(lo // 2, hi // 2 + 1))
+        config = WorldConfig(
+            height=side, width=side, n_agents=team,
+            obstacle_density=float(rng.uniform(*cfg.obstacle_range)),
+            episode_steps=cfg.episode_steps, view_size=cfg.view_size,
+            highway_intensity=highway, deposit_strength=deposit,
+            pheromones_visible=cfg.pheromones, training_start=cfg.training_start,
+            training_filter=cfg.training_filter, rewards=REWARD_PRESETS[cfg.rewards],
+        )
+        scenarios.append(generate_scenario(config, int(rng.integers(2**31))))
+    return scenarios, highway, deposit
+
+
+def share_rewards(rewards: np.ndarray, fraction: float) -> np.ndarray:
+    """Mix one world's per-agent rewards with their mean (``team_reward``).
+
+    Mixed in float32, as the ROS observation messages carry rewards, and returned as float64
+    for the float64 reward scaling both trainers share, so distributed training stays exact.
+    """
+    if fraction == 0.0:
+        return rewards
+    team = np.asarray(rewards, dtype=np.float32)
+    mixed = np.float32(1.0 - fraction) * team + np.float32(fraction) * team.mean(dtype=np.float32)
+    return mixed.astype(np.float64)
+
+
+class MetaAgents:
+    """All training worlds, stepped together so one forward pass serves every agent."""
+
+    def __init__(self, cfg: TrainConfig, first_episode: int = 0):
+        self.cfg = cfg
+        self.rng = scenario_rng(cfg, first_episode)
+        self.worlds: list[World] = []
+        self.offsets = np.cumsum([0, *cfg.teams])
+        self.n_agents = int(self.offsets[-1])
+        self.experts: list = []  # one demonstrator per world (cfg.imitate)
+        self._seen: list[tuple[np.ndarray, np.ndarray]] = []  # each world's last (observations, valid)
+
+    def reset(self, episode: int) -> None:
+        """New scenarios for every world; curriculum intensities from the global episode."""
+        scenarios, self.highway, self.deposit = sample_scenarios(self.cfg, self.rng, episode)
+        self.worlds = [World(scenario) for scenario in scenarios]
+        if self.cfg.imitate:
+            self.experts = [make_policy(self.cfg.imitate) for _ in scenarios]
+            for expert, scenario in zip(self.experts, scenarios):
+                expert.reset(scenario.config.n_agents, scenario.seed)
+
+    def observe(self) -> Frame:
+        """What every agent of every world sees now."""
+        obs, extra, valid, train, queued = [], [], [], [], []
+        self._seen = []
+        for w in self.worlds:
+            obs.append(w.observer.observe())
+            v = w.action_mask()
+            valid.append(v)
+            self._seen.append((obs[-1], v))
+            train.append(w.training_action_mask(v))
+            queued.append(w.queued)
+            extra.append(nest_features(w.pos, w.loads, w.grid.shape))
+        return Frame(np.concatenate(obs), np.concatenate(extra), np.concatenate(valid),
+                     np.concatenate(train), np.concatenate(queued))
+
+    def demonstrations(self) -> tuple[np.ndarray, np.ndarray]:
+        """(expert action, whether it is an imitation target) for every agent of every world,
+        from the last observations; the experts must see every step to keep their state."""
+        cfg, targets, wanted = self.cfg, [], []
+        for w, expert, (obs, valid) in zip(self.worlds, self.experts, self._seen):
+            targets.append(expert.act(AgentBatch.from_world(w, observations=obs, action_mask=valid)))
+            near = np.abs(w.pos - (np.array(w.grid.shape) / 2 - 0.5)).max(axis=1) <= (cfg.imitation_radius or np.inf)
+            who = w.carrying if cfg.imitation_agents == "loaded" else np.ones(len(w.pos), bool)
+            wanted.append(near & who & ~w.queued)
+        return np.concatenate(targets), np.concatenate(wanted)
+
+    def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        rewards, food = [], []
+        for w, lo, hi in zip(self.worlds, self.offsets[:-1], self.offsets[1:]):
+            result = w.step(actions[lo:hi])
+            rewards.append(share_rewards(result.rewards, self.cfg.team_reward))
+            food.append(result.food)
+        return np.concatenate(rewards), np.array(food)
