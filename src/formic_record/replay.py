@@ -1,10 +1,10 @@
-"""Replaying recordings: re-simulate and verify, render, or republish.
+"""Replaying recordings: re-simulate to verify, render or view (republishing, which needs
+rclpy, is :func:`formic_ros.recorder.republish`).
 
 The core is deterministic, so the recorded scenario and the actions the world applied
 (``applied_actions``, 255 = none arrived) reproduce every state: verification re-simulates
 with :class:`formic_world.World` and compares each recorded ``WorldState`` (digest, score,
-agent positions) bit for bit. Reading and re-simulating need no rclpy (messages are decoded
-with the recording's own schemas); only republishing does.
+agent positions) bit for bit. Messages are decoded with the recording's own schemas.
 """
 
 from __future__ import annotations
@@ -204,44 +204,3 @@ def view_recording(path: str | os.PathLike, view, rate: float = 1.0, dt: float =
             view.publish(world, final=world.done or world.t not in episode.actions)
             steps += int(world.t > 0)
     return steps
-
-
-def republish(path: str | os.PathLike, rate: float = 1.0, domain_id: int | None = None,
-              topics: tuple[str, ...] = (), wait_s: float = 1.0, log=print) -> dict:
-    """Publish the recorded messages again (their CDR bytes, with their recorded types and
-    QoS) on the recorded clock: a message recorded ``d`` seconds after the first is sent
-    ``d / rate`` seconds after the start (``rate`` 0: as fast as possible). ``/clock`` is
-    among them, so nodes with ``use_sim_time`` follow the recorded sim time. Playing starts
-    once every topic has a subscriber, or after ``wait_s``."""
-    from rclpy.duration import Duration
-    from rclpy.node import Node
-
-    from .env import ros_session
-    from .recorder import from_bag_qos, message_class
-
-    recording = Recording(path)
-    if recording.streamed:
-        log(f"note: {recording.describe()}")
-    chosen = {t: info for t, info in recording.topics.items() if not topics or t in topics}
-    sent = dict.fromkeys(chosen, 0)
-    with ros_session(domain_id) as executor:
-        node = Node("replay")
-        executor.add_node(node)
-        publishers = {t: node.create_publisher(message_class(info.msgtype), t, from_bag_qos(info.qos))
-                      for t, info in chosen.items()}
-        wait_until = time.monotonic() + wait_s
-        while time.monotonic() < wait_until and any(p.get_subscription_count() == 0 for p in publishers.values()):
-            executor.spin_once(timeout_sec=0.05)
-        start, first = time.monotonic(), None
-        for message in recording.messages(chosen):
-            first = message.log_time if first is None else first
-            if rate > 0:
-                delay = start + (message.log_time - first) / 1e9 / rate - time.monotonic()
-                if delay > 0:
-                    time.sleep(delay)
-            publishers[message.topic].publish(message.data)
-            sent[message.topic] += 1
-        for publisher in publishers.values():
-            publisher.wait_for_all_acked(Duration(seconds=2.0))
-    return {"recording": str(path), "messages": sum(sent.values()), "topics": sent,
-            "seconds": time.monotonic() - start}
