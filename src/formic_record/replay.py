@@ -36,6 +36,11 @@ class RecordedState:
     rows: np.ndarray
     cols: np.ndarray
 
+    @classmethod
+    def from_message(cls, msg) -> "RecordedState":
+        """A WorldState message (rosbags' or rclpy's) as what verification compares."""
+        return cls(msg.state_digest, float(msg.score), np.asarray(msg.agent_rows), np.asarray(msg.agent_cols))
+
 
 @dataclass
 class RecordedEpisode:
@@ -66,9 +71,7 @@ def read_episodes(recording: Recording) -> list[RecordedEpisode]:
             episodes.append(RecordedEpisode())
         episode = episodes[-1]
         if message.msgtype == STATE_TYPE:
-            episode.states[int(msg.step)] = RecordedState(
-                msg.state_digest, float(msg.score), np.asarray(msg.agent_rows), np.asarray(msg.agent_cols)
-            )
+            episode.states[int(msg.step)] = RecordedState.from_message(msg)
         else:
             wire = np.asarray(msg.actions, dtype=np.int64)
             episode.actions[int(msg.step)] = np.stack([np.asarray(msg.agent_ids, dtype=np.int64),
@@ -96,7 +99,7 @@ def resimulate(episode: RecordedEpisode) -> Iterator[World]:
         yield world
 
 
-def _difference(world: World, state: RecordedState) -> str | None:
+def difference_from(world: World, state: RecordedState) -> str | None:
     """The first field where a recorded state differs from the re-simulated world."""
     if state.digest != world.state_digest():
         return f"state_digest recorded {state.digest}, re-simulated {world.state_digest()}"
@@ -150,7 +153,7 @@ def verify_recording(path: str | os.PathLike) -> VerifyReport:
                 state = episode.states.get(world.t)
                 if state is None:
                     continue
-                difference = _difference(world, state)
+                difference = difference_from(world, state)
                 report.states_checked += 1
                 if difference:
                     report.ok = False

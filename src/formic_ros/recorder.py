@@ -32,21 +32,7 @@ from . import qos as topics
 
 DISCOVERY_PERIOD_S = 0.2
 STREAM_DEPTH = 100  # the depth recorded for (and replayed with) stream topics
-SCENARIO_TYPE = "formic_interfaces/msg/ScenarioDescription"
-
-# The world's topics (relative to the namespace): subscribed at once, latched or not.
-CONVENTIONAL_TOPICS: dict[str, tuple[str, bool]] = {
-    topics.SCENARIO: (SCENARIO_TYPE, True),
-    topics.SUMMARY: ("std_msgs/msg/String", True),
-    topics.STATE: ("formic_interfaces/msg/WorldState", False),
-    topics.APPLIED_ACTIONS: ("formic_interfaces/msg/ActionBatch", False),
-    topics.OBSERVATIONS: ("formic_interfaces/msg/ObservationBatch", False),
-    topics.ACTIONS: ("formic_interfaces/msg/ActionBatch", False),
-    topics.SCORE: ("std_msgs/msg/Float64", False),
-    topics.MAP: ("nav_msgs/msg/OccupancyGrid", True),
-    topics.AGENT_MARKERS: ("visualization_msgs/msg/MarkerArray", True),
-    topics.CLOCK: ("rosgraph_msgs/msg/Clock", False),
-}
+SCENARIO_TYPE = topics.TOPICS[topics.SCENARIO].msgtype
 
 
 def message_class(msgtype: str):
@@ -136,10 +122,10 @@ class Recorder(Node):
         if options.checkpoint_id:
             run_info["checkpoint_id"] = options.checkpoint_id
         writer.set_run_info(run_info)
-        for leaf, (msgtype, latched) in CONVENTIONAL_TOPICS.items():
-            name = topics.full_name(options.namespace, leaf)
+        for leaf in topics.WORLD_TOPICS:
+            name, spec = topics.full_name(options.namespace, leaf), topics.TOPICS[leaf]
             if self._wanted(name):
-                self._subscribe(name, msgtype, subscription_qos(latched))
+                self._subscribe(name, spec.msgtype, subscription_qos(spec.latched))
         self._discover()
         self.create_timer(DISCOVERY_PERIOD_S, self._discover)
 
