@@ -84,7 +84,7 @@ def record_command(out, topics, namespace, domain_id, model, duration, chunk_kb,
 def replay_command(recording, verify, republish, repair, live_view, view_port, view_wait, rate, topics, wait,
                    domain_id, as_json) -> None:
     """Verify, republish, view or repair a recording (without a mode: describe it)."""
-    from formic_record.bag import Recording, RecordingError, repair_recording
+    from formic_record.reading import Recording, RecordingError, repair_recording
 
     if verify + republish + repair + live_view > 1:
         raise click.UsageError("choose one of --verify, --republish, --view, --repair")

@@ -20,7 +20,7 @@ import numpy as np
 
 from formic_world import NO_ACTION, Scenario, World
 
-from .bag import Recording
+from .reading import Recording
 
 NO_ACTION_WIRE = 255  # ActionBatch value for "no action arrived" (formic_ros.qos.NO_ACTION_WIRE)
 SCENARIO_TYPE = "formic_interfaces/msg/ScenarioDescription"

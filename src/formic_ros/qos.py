@@ -31,39 +31,27 @@ WEIGHTS = "weights"  # trainer -> learning hosts
 
 NO_ACTION_WIRE = 255  # an applied action that did not arrive in time (ActionBatch.actions)
 
+
+def reliable(depth: int, latched: bool = False) -> QoSProfile:
+    """Keep-last ``depth``, reliable; transient-local when ``latched``, else volatile."""
+    durability = DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=ReliabilityPolicy.RELIABLE,
+                      durability=durability)
+
+
 # Latched: late joiners (a restarted host, a recorder, a viewer) get the last message.
-LATCHED = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=1,
-    reliability=ReliabilityPolicy.RELIABLE,
-    durability=DurabilityPolicy.TRANSIENT_LOCAL,
-)
+LATCHED = reliable(1, latched=True)
 # The lockstep exchange: observations and actions (at most a step or two in flight).
-STREAM = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=10,
-    reliability=ReliabilityPolicy.RELIABLE,
-    durability=DurabilityPolicy.VOLATILE,
-)
+STREAM = reliable(10)
 # What the world logs each step (state, applied actions, clock, score): a deep writer history,
 # so a subscriber that falls behind for a while (a recorder starting up) loses nothing.
 LOG_DEPTH = 200
-LOG = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=LOG_DEPTH,
-    reliability=ReliabilityPolicy.RELIABLE,
-    durability=DurabilityPolicy.VOLATILE,
-)
+LOG = reliable(LOG_DEPTH)
 # Viewer topics (map, markers): the newest one matters, and a viewer that opens late sees it.
 VIEWER = LATCHED
 # Rollouts: a few chunks may wait while the trainer updates.
 ROLLOUT_DEPTH = 16
-ROLLOUT = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=ROLLOUT_DEPTH,
-    reliability=ReliabilityPolicy.RELIABLE,
-    durability=DurabilityPolicy.VOLATILE,
-)
+ROLLOUT = reliable(ROLLOUT_DEPTH)
 
 
 @dataclass(frozen=True)

@@ -26,7 +26,8 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
 
-from formic_record.bag import BagWriter, Recording, package_version
+from formic_record.bag import BagWriter, package_version
+from formic_record.reading import Recording
 
 from . import qos as topics
 
