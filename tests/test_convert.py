@@ -1,5 +1,6 @@
-"""Observation encodings of ObservationBatch: compact is lossless bit for bit on real
-observations (finite resources, pheromones), through CDR, and about ten times smaller."""
+"""The codec: every encode has its decode (round trips through CDR), and the observation
+encodings of ObservationBatch: compact is lossless bit for bit on real observations (finite
+resources, pheromones), through CDR, and about ten times smaller."""
 
 from __future__ import annotations
 
@@ -11,7 +12,9 @@ msg_mod = pytest.importorskip("formic_interfaces.msg")
 
 from conftest import agent, build_world, resource, step  # noqa: E402
 
-from formic_ros import convert  # noqa: E402
+from formic_agent.policy import AgentBatch  # noqa: E402
+from formic_record.replay import RecordedState  # noqa: E402
+from formic_ros import convert, wire  # noqa: E402
 from formic_world import World, WorldConfig, generate_scenario  # noqa: E402
 from formic_world.geometry import EAST, JOIN, NORTH, WEST  # noqa: E402
 from formic_world.observation import CH_PHEROMONE, CH_RESOURCE_ENTRY  # noqa: E402
@@ -23,10 +26,9 @@ def bits(a: np.ndarray) -> bytes:
     return np.ascontiguousarray(a, dtype=np.float32).tobytes()
 
 
-def fields_of(world: World, result) -> dict:
-    return dict(step=world.t, observations=result.observations, action_mask=result.action_mask,
-                loads=world.loads, rewards=result.rewards, queued=world.queued, positions=world.pos,
-                world_shape=world.grid.shape, done=result.done)
+def encode(world: World, result, **kw):
+    batch = AgentBatch.from_world(world, observations=result.observations, action_mask=result.action_mask)
+    return convert.encode_observation_batch(batch, result.rewards, result.done, **kw)
 
 
 def through_cdr(msg):
@@ -63,11 +65,11 @@ def test_compact_holds_a_bit_per_value_and_the_values_that_are_not_zero_or_one()
     assert np.float32(37 / 40) in obs[:, CH_RESOURCE_ENTRY]
     others = obs[(obs != 0) & (obs != 1)]
     assert len(np.setdiff1d(obs[:, CH_PHEROMONE], [0, 1])) > 0
-    nonzero_bits, one_bits, other_values = convert.encode_compact(obs)
+    nonzero_bits, one_bits, other_values = wire.encode_compact(obs)
     assert len(nonzero_bits) == 4 * 8 * 11 * 11 // 8
     assert len(one_bits) == (np.count_nonzero(obs) + 7) // 8
     assert bits(np.frombuffer(other_values, dtype=np.float32)) == bits(others)
-    assert bits(convert.decode_compact(nonzero_bits, one_bits, other_values, obs.shape)) == bits(obs)
+    assert bits(wire.decode_compact(nonzero_bits, one_bits, other_values, obs.shape)) == bits(obs)
 
 
 def test_compact_keeps_every_float_bit_for_bit():
@@ -79,29 +81,29 @@ def test_compact_keeps_every_float_bit_for_bit():
     words.reshape(3, -1)[:, ::3] = special
     words[1, 2] = 0x3F800000
     obs = words.view(np.float32)
-    back = convert.decode_compact(*convert.encode_compact(obs), obs.shape)
+    back = wire.decode_compact(*wire.encode_compact(obs), obs.shape)
     assert back.dtype == np.float32 and back.shape == obs.shape
     assert bits(back) == bits(obs)
     empty = np.zeros((0, 8, 11, 11), dtype=np.float32)
-    assert convert.decode_compact(*convert.encode_compact(empty), empty.shape).shape == empty.shape
+    assert wire.decode_compact(*wire.encode_compact(empty), empty.shape).shape == empty.shape
 
 
 def test_malformed_compact_fields_are_rejected():
     _, result = finite_resource_world()
     obs = result.observations
-    nonzero_bits, one_bits, other_values = convert.encode_compact(obs)
+    nonzero_bits, one_bits, other_values = wire.encode_compact(obs)
     with pytest.raises(ValueError, match="nonzero bytes"):
-        convert.decode_compact(nonzero_bits[:-1], one_bits, other_values, obs.shape)
+        wire.decode_compact(nonzero_bits[:-1], one_bits, other_values, obs.shape)
     with pytest.raises(ValueError, match="one-bit bytes"):
-        convert.decode_compact(nonzero_bits, one_bits + b"\0", other_values, obs.shape)
+        wire.decode_compact(nonzero_bits, one_bits + b"\0", other_values, obs.shape)
     with pytest.raises(ValueError, match="other values"):
-        convert.decode_compact(nonzero_bits, one_bits, other_values[:-1], obs.shape)
+        wire.decode_compact(nonzero_bits, one_bits, other_values[:-1], obs.shape)
     with pytest.raises(ValueError, match="unknown observation encoding"):
-        convert.encoding_code("float16")
-    msg = convert.observation_batch(**fields_of(*finite_resource_world()))
+        wire.encoding_code("float16")
+    msg = encode(*finite_resource_world())
     msg.encoding = 7
     with pytest.raises(ValueError, match="unknown observation encoding 7"):
-        convert.decode_observations(msg)
+        wire.decode_observations(msg)
 
 
 # ------------------------------------------------------------------- through messages
@@ -110,15 +112,14 @@ def test_batches_carry_the_world_observations_exactly(encoding):
     for world, result in (finite_resource_world(), random_world(16, 24, 60)):
         obs = result.observations
         assert len(np.setdiff1d(obs[:, CH_PHEROMONE], [0, 1])) > 0
-        msg, _ = through_cdr(convert.observation_batch(**fields_of(world, result), encoding=encoding))
-        assert msg.encoding == convert.ENCODINGS[encoding]
+        msg, _ = through_cdr(encode(world, result, encoding=encoding))
+        assert msg.encoding == wire.ENCODINGS[encoding]
         assert (len(msg.data) == 0) == (encoding == "compact")
-        assert bits(convert.batch_from_observation_batch(msg).observations) == bits(obs)
+        assert bits(convert.decode_observation_batch(msg).observations) == bits(obs)
         rows = np.array([3, 0])
-        assert bits(convert.batch_from_observation_batch(msg, rows).observations) == bits(obs[rows])
-        resent, _ = through_cdr(convert.observation_batch(**fields_of(world, result), agent_ids=rows,
-                                                          encoding=encoding))
-        batch = convert.batch_from_observation_batch(resent)
+        assert bits(convert.decode_observation_batch(msg, rows).observations) == bits(obs[rows])
+        resent, _ = through_cdr(encode(world, result, rows=rows, encoding=encoding))
+        batch = convert.decode_observation_batch(resent)
         assert batch.agent_ids.tolist() == [3, 0] and bits(batch.observations) == bits(obs[rows])
 
 
@@ -127,14 +128,103 @@ def test_finite_resources_show_fractions_that_survive_the_trip():
     obs = result.observations
     fractions = np.setdiff1d(obs[:, CH_RESOURCE_ENTRY], [0, 1])
     assert len(fractions) > 0  # some resource has been gathered from
-    msg, _ = through_cdr(convert.observation_batch(**fields_of(world, result)))
-    assert bits(convert.batch_from_observation_batch(msg).observations) == bits(obs)
+    msg, _ = through_cdr(encode(world, result))
+    assert bits(convert.decode_observation_batch(msg).observations) == bits(obs)
 
 
 def test_compact_is_about_ten_times_smaller():
     """The bench's setting: 128 agents in 64x64 (0.5 MB of float32 a step)."""
     world, result = random_world(128, 64, 100)
-    _, plain = through_cdr(convert.observation_batch(**fields_of(world, result), encoding="float32"))
-    _, compact = through_cdr(convert.observation_batch(**fields_of(world, result), encoding="compact"))
+    _, plain = through_cdr(encode(world, result, encoding="float32"))
+    _, compact = through_cdr(encode(world, result, encoding="compact"))
     assert plain > 128 * 8 * 11 * 11 * 4
     assert compact < plain / 6
+
+
+# ------------------------------------------------------------------- round trips
+def test_agent_batches_round_trip_batched_and_per_agent():
+    world, result = random_world(6, 24, 20)
+    batch = AgentBatch.from_world(world, observations=result.observations, action_mask=result.action_mask)
+    rows = np.array([4, 1])
+    batched, _ = through_cdr(convert.encode_observation_batch(batch, result.rewards, result.done))
+    per_agent = [through_cdr(m)[0] for m in convert.encode_agent_observations(batch, result.rewards, result.done, rows)]
+    for got, want_rows in ((convert.decode_observation_batch(batched), slice(None)),
+                           (convert.decode_observation_batch(batched, rows), rows),
+                           (convert.decode_agent_observations(per_agent), rows)):
+        assert got.step == batch.step and got.world_shape == batch.world_shape
+        for name in ("agent_ids", "observations", "action_mask", "positions", "queued"):
+            np.testing.assert_array_equal(getattr(got, name), getattr(batch, name)[want_rows])
+        np.testing.assert_array_equal(got.loads.astype(np.float32), batch.loads[want_rows].astype(np.float32))
+    assert wire.read(batched.rewards, np.float32).tolist() == result.rewards.astype(np.float32).tolist()
+    assert [m.reward for m in per_agent] == result.rewards[rows].astype(np.float32).tolist()
+
+
+def test_actions_round_trip_with_no_action():
+    msg, _ = through_cdr(convert.encode_actions(7, np.array([5, 2, 9]), np.array([2, -1, 4])))
+    assert bytes(msg.actions) == bytes([2, 255, 4])
+    step, ids, actions = convert.decode_actions(msg)
+    assert (step, ids.tolist(), actions.tolist()) == (7, [5, 2, 9], [2, -1, 4])
+    applied, _ = through_cdr(convert.encode_applied(3, np.array([0, -1, 1])))
+    assert convert.decode_applied(applied, 3).tolist() == [0, -1, 1]
+
+
+def test_scenario_and_state_round_trip():
+    world, _ = random_world(4, 16, 5)
+    msg, _ = through_cdr(convert.encode_scenario(world.scenario, "random"))
+    assert convert.decode_scenario(msg).to_json() == world.scenario.to_json()
+    state, _ = through_cdr(convert.encode_state(world, np.zeros(4)))
+    from formic_record.replay import difference_from
+
+    assert difference_from(world, RecordedState.from_message(state)) is None
+
+
+def rollout_arrays(steps: int = 3, agents: int = 2, optional: bool = True) -> dict[str, np.ndarray]:
+    rng = np.random.default_rng(0)
+    arrays = {
+        "agent_ids": np.array([5, 7][:agents], dtype=np.int64),
+        "obs": rng.random((steps + 1, agents, 8, 11, 11), dtype=np.float32),
+        "actions": rng.integers(0, 5, (steps, agents)),
+        "rewards": rng.random((steps, agents), dtype=np.float32),
+        "train_mask": rng.random((steps, agents, 5)) < 0.5,
+        "loss_mask": (rng.random((steps, agents)) < 0.5).astype(np.float32),
+        "value_mask": (rng.random((steps, agents)) < 0.5).astype(np.float32),
+    }
+    if optional:
+        arrays["sample_mask"] = rng.random((steps, agents, 5)) < 0.5
+        arrays["extra"] = rng.random((steps + 1, agents, 4), dtype=np.float32)
+    return arrays
+
+
+@pytest.mark.parametrize("optional", [True, False])
+def test_rollouts_round_trip(optional):
+    want = rollout_arrays(optional=optional)
+    msg, _ = through_cdr(convert.encode_rollout(want, weights_version=3, host="h", episode=2, food=1.5))
+    assert (msg.weights_version, msg.host, msg.episode, msg.food, msg.n_steps) == (3, "h", 2, 1.5, 3)
+    got = convert.decode_rollout(msg)
+    assert got.keys() == want.keys()
+    for key in want:
+        assert got[key].dtype == want[key].dtype and np.array_equal(got[key], want[key]), key
+    msg.rewards = msg.rewards[:-1]
+    with pytest.raises(ValueError, match="Rollout.rewards"):
+        convert.decode_rollout(msg)
+
+
+def test_weights_round_trip():
+    want = convert.WeightsPayload(4, b"\x00\x01weights", "abc123", {"channels": 8, "hidden": [64, 64]})
+    msg, _ = through_cdr(convert.encode_weights(want))
+    assert convert.decode_weights(msg) == want
+
+
+def test_rollout_encoding_matches_the_collectors_message():
+    """The codec writes the very bytes RolloutCollector.to_message writes (so one replaces the other)."""
+    from formic_ros.trainer_node import RolloutCollector
+
+    a = rollout_arrays()
+    collector = RolloutCollector(a["agent_ids"], host="h", episode=2, weights_version=3)
+    for t in range(3):
+        collector.add_step(a["obs"][t], a["train_mask"][t], a["loss_mask"][t] == 0, a["actions"][t],
+                           a["value_mask"][t], a["sample_mask"][t], a["extra"][t])
+        collector.add_rewards(a["rewards"][t])
+    want = collector.to_message(a["obs"][3], food=1.5, last_extra=a["extra"][3])
+    got = convert.encode_rollout(collector.arrays(a["obs"][3], a["extra"][3]), 3, "h", 2, 1.5)
+    assert rclpy_serialization.serialize_message(got) == rclpy_serialization.serialize_message(want)

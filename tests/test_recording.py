@@ -23,8 +23,9 @@ import pytest
 pytest.importorskip("rclpy")
 pytest.importorskip("formic_interfaces.msg")
 
-from formic_ros.bag import KEPT_SUFFIX, BagWriter, Recording, repair_recording  # noqa: E402
-from formic_ros.replay import read_episodes, render_recording, resimulate, verify_recording  # noqa: E402
+from formic_record.bag import BagWriter  # noqa: E402
+from formic_record.reading import KEPT_SUFFIX, Recording, repair_recording  # noqa: E402
+from formic_record.replay import read_episodes, render_recording, resimulate, verify_recording  # noqa: E402
 
 pytestmark = pytest.mark.filterwarnings("ignore:module 'sre_:DeprecationWarning")
 
@@ -369,3 +370,9 @@ def test_foxglove_layout_shows_map_markers_and_score():
         assert topic in text
     kinds = {key.split("!")[0] for key in layout["configById"]}
     assert {"3D", "Plot"} <= kinds
+
+
+def test_recording_io_imports_no_rclpy():
+    code = "import sys, formic_record.bag, formic_record.replay; print(any(m.startswith('rclpy') for m in sys.modules))"
+    out = subprocess.run([PYTHON, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"

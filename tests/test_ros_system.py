@@ -94,22 +94,20 @@ def test_messages_carry_exactly_what_policies_see():
     world = World(generate_scenario(WorldConfig(height=24, width=24, n_agents=5, episode_steps=10), 3))
     result = world.step(np.array([0, 1, 2, 3, 4]))
     direct = AgentBatch.from_world(world, observations=result.observations, action_mask=result.action_mask)
-    fields = dict(step=world.t, observations=result.observations, action_mask=result.action_mask, loads=world.loads,
-                  rewards=result.rewards, queued=world.queued, positions=world.pos, world_shape=world.grid.shape,
-                  done=False)
-    from_batch = convert.batch_from_observation_batch(convert.observation_batch(**fields))
-    from_agents = convert.batch_from_agent_observations(convert.agent_observations(agent_ids=range(5), **fields))
+    rewards = result.rewards
+    from_batch = convert.decode_observation_batch(convert.encode_observation_batch(direct, rewards, False))
+    from_agents = convert.decode_agent_observations(convert.encode_agent_observations(direct, rewards, False))
     rows = np.array([1, 4])
-    subset = convert.batch_from_observation_batch(convert.observation_batch(**fields), rows)
+    subset = convert.decode_observation_batch(convert.encode_observation_batch(direct, rewards, False), rows)
     for got in (from_batch, from_agents):
         assert got.step == direct.step and got.world_shape == direct.world_shape
         for name in ("agent_ids", "observations", "action_mask", "positions", "queued"):
             np.testing.assert_array_equal(getattr(got, name), getattr(direct, name))
         np.testing.assert_array_equal(got.loads.astype(np.float32), direct.loads.astype(np.float32))
     np.testing.assert_array_equal(subset.observations, direct.observations[rows])
-    applied = convert.applied_actions(7, np.array([2, NO_ACTION, 4]))
+    applied = convert.encode_applied(7, np.array([2, NO_ACTION, 4]))
     assert bytes(applied.actions) == bytes([2, 255, 4])
-    assert convert.actions_from_applied(applied, 3).tolist() == [2, NO_ACTION, 4]
+    assert convert.decode_applied(applied, 3).tolist() == [2, NO_ACTION, 4]
 
 
 class _Logger:

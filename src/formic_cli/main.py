@@ -143,7 +143,7 @@ def render(source, out, scale, fps) -> None:
         click.echo(f"wrote {target}")
         return
     try:
-        from formic_ros.replay import render_recording
+        from formic_record.replay import render_recording
     except ImportError as exc:
         raise click.ClickException(f"cannot render recordings: {exc}") from exc
     target = Path(out or (src.with_suffix(".mp4") if src.is_file() else src / "replay.mp4"))

@@ -80,13 +80,13 @@ def record_command(out, topics, namespace, domain_id, model, duration, chunk_kb,
 def replay_command(recording, verify, republish, repair, live_view, view_port, view_wait, rate, topics, wait,
                    domain_id, as_json) -> None:
     """Verify, republish, view or repair a recording (without a mode: describe it)."""
-    from formic_ros.bag import Recording, RecordingError, repair_recording
+    from formic_record.reading import Recording, RecordingError, repair_recording
 
     if verify + republish + repair + live_view > 1:
         raise click.UsageError("choose one of --verify, --republish, --view, --repair")
     try:
         if live_view:
-            from formic_ros.replay import view_recording
+            from formic_record.replay import view_recording
 
             view = open_live_view(view_port, wait=view_wait)
             try:
@@ -106,7 +106,7 @@ def replay_command(recording, verify, republish, repair, live_view, view_port, v
             else:
                 click.echo(report.note)
         elif verify:
-            from formic_ros.replay import verify_recording
+            from formic_record.replay import verify_recording
 
             report = verify_recording(recording)
             if as_json:
@@ -116,7 +116,7 @@ def replay_command(recording, verify, republish, repair, live_view, view_port, v
             if not report.ok:
                 sys.exit(1)
         elif republish:
-            from formic_ros.replay import republish as play
+            from formic_ros.recorder import republish as play
 
             result = play(recording, rate=rate, domain_id=domain_id, topics=_split(topics), wait_s=wait, log=_log)
             if as_json:

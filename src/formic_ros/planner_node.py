@@ -48,7 +48,7 @@ class PlannerNode(Node):
     def _on_scenario(self, msg: ScenarioDescription) -> None:
         if msg.scenario_json == self.scenario_json:
             return
-        scenario = convert.scenario_from_description(msg)
+        scenario = convert.decode_scenario(msg)
         self.scenario_json = msg.scenario_json
         self.world = World(scenario)
         self.planner.reset(scenario.config.n_agents, scenario.seed)
@@ -68,7 +68,7 @@ class PlannerNode(Node):
             )
             self.world = None
             return
-        world.step(convert.actions_from_applied(msg, world.config.n_agents))
+        world.step(convert.decode_applied(msg, world.config.n_agents))
         self.digests[world.t] = world.state_digest()
         self._compare()
         if world.done:
@@ -89,7 +89,7 @@ class PlannerNode(Node):
     def _plan(self) -> None:
         world = self.world
         actions = self.planner.act_world(world)
-        self.pending = convert.action_batch(world.t, np.arange(world.config.n_agents), actions)
+        self.pending = convert.encode_actions(world.t, np.arange(world.config.n_agents), actions)
         self.sent_at = -np.inf
         self.tick()
 

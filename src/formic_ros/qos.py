@@ -1,10 +1,14 @@
-"""Topic names and QoS profiles of the ForMIC ROS system (one place, documented in docs/ros.md).
+"""Every topic of the ForMIC ROS system: its name, message type and QoS (:data:`TOPICS`; one
+place, documented in docs/ros.md).
 
-Names are relative to the namespace (default ``/formic``) except ``/clock``. Everything is
+Names are relative to the namespace (default ``/formic``) except ``/clock``; per-agent topics
+are ``agent_K/observation`` and ``agent_K/action`` (:func:`agent_topic`). Everything is
 reliable: lockstep cannot afford lost messages, and a resend would cost a deadline.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
@@ -22,34 +26,63 @@ SCORE = "score"
 CLOCK = "/clock"
 AGENT_OBSERVATION = "observation"  # under the agent node: /formic/agent_K/observation
 AGENT_ACTION = "action"  # /formic/agent_K/action
+ROLLOUTS = "rollouts"  # learning hosts -> trainer
+WEIGHTS = "weights"  # trainer -> learning hosts
 
 NO_ACTION_WIRE = 255  # an applied action that did not arrive in time (ActionBatch.actions)
 
+
+def reliable(depth: int, latched: bool = False) -> QoSProfile:
+    """Keep-last ``depth``, reliable; transient-local when ``latched``, else volatile."""
+    durability = DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=ReliabilityPolicy.RELIABLE,
+                      durability=durability)
+
+
 # Latched: late joiners (a restarted host, a recorder, a viewer) get the last message.
-LATCHED = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=1,
-    reliability=ReliabilityPolicy.RELIABLE,
-    durability=DurabilityPolicy.TRANSIENT_LOCAL,
-)
+LATCHED = reliable(1, latched=True)
 # The lockstep exchange: observations and actions (at most a step or two in flight).
-STREAM = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=10,
-    reliability=ReliabilityPolicy.RELIABLE,
-    durability=DurabilityPolicy.VOLATILE,
-)
+STREAM = reliable(10)
 # What the world logs each step (state, applied actions, clock, score): a deep writer history,
 # so a subscriber that falls behind for a while (a recorder starting up) loses nothing.
 LOG_DEPTH = 200
-LOG = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=LOG_DEPTH,
-    reliability=ReliabilityPolicy.RELIABLE,
-    durability=DurabilityPolicy.VOLATILE,
-)
+LOG = reliable(LOG_DEPTH)
 # Viewer topics (map, markers): the newest one matters, and a viewer that opens late sees it.
 VIEWER = LATCHED
+# Rollouts: a few chunks may wait while the trainer updates.
+ROLLOUT_DEPTH = 16
+ROLLOUT = reliable(ROLLOUT_DEPTH)
+
+
+@dataclass(frozen=True)
+class Topic:
+    msgtype: str  # pkg/msg/Name
+    qos: QoSProfile  # what the publisher offers
+
+    @property
+    def latched(self) -> bool:
+        return self.qos.durability == DurabilityPolicy.TRANSIENT_LOCAL
+
+
+_FORMIC = "formic_interfaces/msg/"
+TOPICS: dict[str, Topic] = {
+    SCENARIO: Topic(_FORMIC + "ScenarioDescription", LATCHED),
+    SUMMARY: Topic("std_msgs/msg/String", LATCHED),
+    STATE: Topic(_FORMIC + "WorldState", LOG),
+    APPLIED_ACTIONS: Topic(_FORMIC + "ActionBatch", LOG),
+    OBSERVATIONS: Topic(_FORMIC + "ObservationBatch", STREAM),
+    ACTIONS: Topic(_FORMIC + "ActionBatch", STREAM),
+    SCORE: Topic("std_msgs/msg/Float64", LOG),
+    MAP: Topic("nav_msgs/msg/OccupancyGrid", VIEWER),
+    AGENT_MARKERS: Topic("visualization_msgs/msg/MarkerArray", VIEWER),
+    CLOCK: Topic("rosgraph_msgs/msg/Clock", LOG),
+    AGENT_OBSERVATION: Topic(_FORMIC + "AgentObservation", STREAM),  # under agent_K/
+    AGENT_ACTION: Topic(_FORMIC + "AgentAction", STREAM),  # under agent_K/
+    ROLLOUTS: Topic(_FORMIC + "Rollout", ROLLOUT),
+    WEIGHTS: Topic(_FORMIC + "Weights", LATCHED),
+}
+# The world's topics, which a recorder subscribes to at once (the rest it discovers).
+WORLD_TOPICS = (SCENARIO, SUMMARY, STATE, APPLIED_ACTIONS, OBSERVATIONS, ACTIONS, SCORE, MAP, AGENT_MARKERS, CLOCK)
 
 
 def agent_node_name(agent_id: int) -> str:

@@ -1,4 +1,6 @@
-"""The recorder node: every ForMIC topic (and ``/clock``) into a rosbag2 recording with MCAP
+"""Recording and republishing over ROS (the files themselves are :mod:`formic_record`'s).
+
+The recorder node: every ForMIC topic (and ``/clock``) into a rosbag2 recording with MCAP
 storage, as the CDR bytes that arrived (``raw=True``: nothing is decoded on the hot path).
 
 The conventional topics are subscribed at start, so a launcher can wait for the recorder
@@ -6,42 +8,32 @@ before the world steps; the graph is polled for the rest (per-agent topics, anyt
 node publishes in the namespace), with the QoS its publishers offer. The latched scenario
 description becomes the recording's run description (seed, scenario, configuration digest,
 policies, model checkpoint id, package version). SIGINT or SIGTERM closes the recording
-cleanly; a SIGKILL leaves every chunk flushed so far readable (see :mod:`formic_ros.bag`).
+cleanly; a SIGKILL leaves every chunk flushed so far readable (see :mod:`formic_record.bag`).
 """
 
 from __future__ import annotations
 
 import importlib
+import os
 import signal
 import time
 from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 
+from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
 
+from formic_record.bag import BagWriter, package_version
+from formic_record.reading import Recording
+
 from . import qos as topics
-from .bag import BagWriter, package_version
 
 DISCOVERY_PERIOD_S = 0.2
 STREAM_DEPTH = 100  # the depth recorded for (and replayed with) stream topics
-SCENARIO_TYPE = "formic_interfaces/msg/ScenarioDescription"
-
-# The world's topics (relative to the namespace): subscribed at once, latched or not.
-CONVENTIONAL_TOPICS: dict[str, tuple[str, bool]] = {
-    topics.SCENARIO: (SCENARIO_TYPE, True),
-    topics.SUMMARY: ("std_msgs/msg/String", True),
-    topics.STATE: ("formic_interfaces/msg/WorldState", False),
-    topics.APPLIED_ACTIONS: ("formic_interfaces/msg/ActionBatch", False),
-    topics.OBSERVATIONS: ("formic_interfaces/msg/ObservationBatch", False),
-    topics.ACTIONS: ("formic_interfaces/msg/ActionBatch", False),
-    topics.SCORE: ("std_msgs/msg/Float64", False),
-    topics.MAP: ("nav_msgs/msg/OccupancyGrid", True),
-    topics.AGENT_MARKERS: ("visualization_msgs/msg/MarkerArray", True),
-    topics.CLOCK: ("rosgraph_msgs/msg/Clock", False),
-}
+SCENARIO_TYPE = topics.TOPICS[topics.SCENARIO].msgtype
 
 
 def message_class(msgtype: str):
@@ -131,10 +123,10 @@ class Recorder(Node):
         if options.checkpoint_id:
             run_info["checkpoint_id"] = options.checkpoint_id
         writer.set_run_info(run_info)
-        for leaf, (msgtype, latched) in CONVENTIONAL_TOPICS.items():
-            name = topics.full_name(options.namespace, leaf)
+        for leaf in topics.WORLD_TOPICS:
+            name, spec = topics.full_name(options.namespace, leaf), topics.TOPICS[leaf]
             if self._wanted(name):
-                self._subscribe(name, msgtype, subscription_qos(latched))
+                self._subscribe(name, spec.msgtype, subscription_qos(spec.latched))
         self._discover()
         self.create_timer(DISCOVERY_PERIOD_S, self._discover)
 
@@ -216,3 +208,40 @@ def record(out: str | Path, options: RecorderOptions, domain_id: int | None = No
         writer.close()
     return {"recording": str(out), "file": str(writer.mcap_path), "messages": sum(counts.values()),
             "topics": counts, "skipped": skipped}
+
+
+def republish(path: str | os.PathLike, rate: float = 1.0, domain_id: int | None = None,
+              topics: tuple[str, ...] = (), wait_s: float = 1.0, log=print) -> dict:
+    """Publish the recorded messages again (their CDR bytes, with their recorded types and
+    QoS) on the recorded clock: a message recorded ``d`` seconds after the first is sent
+    ``d / rate`` seconds after the start (``rate`` 0: as fast as possible). ``/clock`` is
+    among them, so nodes with ``use_sim_time`` follow the recorded sim time. Playing starts
+    once every topic has a subscriber, or after ``wait_s``."""
+    from .env import ros_session
+
+    recording = Recording(path)
+    if recording.streamed:
+        log(f"note: {recording.describe()}")
+    chosen = {t: info for t, info in recording.topics.items() if not topics or t in topics}
+    sent = dict.fromkeys(chosen, 0)
+    with ros_session(domain_id) as executor:
+        node = Node("replay")
+        executor.add_node(node)
+        publishers = {t: node.create_publisher(message_class(info.msgtype), t, from_bag_qos(info.qos))
+                      for t, info in chosen.items()}
+        wait_until = time.monotonic() + wait_s
+        while time.monotonic() < wait_until and any(p.get_subscription_count() == 0 for p in publishers.values()):
+            executor.spin_once(timeout_sec=0.05)
+        start, first = time.monotonic(), None
+        for message in recording.messages(chosen):
+            first = message.log_time if first is None else first
+            if rate > 0:
+                delay = start + (message.log_time - first) / 1e9 / rate - time.monotonic()
+                if delay > 0:
+                    time.sleep(delay)
+            publishers[message.topic].publish(message.data)
+            sent[message.topic] += 1
+        for publisher in publishers.values():
+            publisher.wait_for_all_acked(Duration(seconds=2.0))
+    return {"recording": str(path), "messages": sum(sent.values()), "topics": sent,
+            "seconds": time.monotonic() - start}

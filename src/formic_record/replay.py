@@ -1,10 +1,10 @@
-"""Replaying recordings: re-simulate and verify, render, or republish.
+"""Replaying recordings: re-simulate to verify, render or view (republishing, which needs
+rclpy, is :func:`formic_ros.recorder.republish`).
 
 The core is deterministic, so the recorded scenario and the actions the world applied
 (``applied_actions``, 255 = none arrived) reproduce every state: verification re-simulates
 with :class:`formic_world.World` and compares each recorded ``WorldState`` (digest, score,
-agent positions) bit for bit. Reading and re-simulating need no rclpy (messages are decoded
-with the recording's own schemas); only republishing does.
+agent positions) bit for bit. Messages are decoded with the recording's own schemas.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ import numpy as np
 
 from formic_world import NO_ACTION, Scenario, World
 
-from .bag import Recording
+from .reading import Recording
 
 NO_ACTION_WIRE = 255  # ActionBatch value for "no action arrived" (formic_ros.qos.NO_ACTION_WIRE)
 SCENARIO_TYPE = "formic_interfaces/msg/ScenarioDescription"
@@ -35,6 +35,11 @@ class RecordedState:
     score: float
     rows: np.ndarray
     cols: np.ndarray
+
+    @classmethod
+    def from_message(cls, msg) -> "RecordedState":
+        """A WorldState message (rosbags' or rclpy's) as what verification compares."""
+        return cls(msg.state_digest, float(msg.score), np.asarray(msg.agent_rows), np.asarray(msg.agent_cols))
 
 
 @dataclass
@@ -66,9 +71,7 @@ def read_episodes(recording: Recording) -> list[RecordedEpisode]:
             episodes.append(RecordedEpisode())
         episode = episodes[-1]
         if message.msgtype == STATE_TYPE:
-            episode.states[int(msg.step)] = RecordedState(
-                msg.state_digest, float(msg.score), np.asarray(msg.agent_rows), np.asarray(msg.agent_cols)
-            )
+            episode.states[int(msg.step)] = RecordedState.from_message(msg)
         else:
             wire = np.asarray(msg.actions, dtype=np.int64)
             episode.actions[int(msg.step)] = np.stack([np.asarray(msg.agent_ids, dtype=np.int64),
@@ -96,7 +99,7 @@ def resimulate(episode: RecordedEpisode) -> Iterator[World]:
         yield world
 
 
-def _difference(world: World, state: RecordedState) -> str | None:
+def difference_from(world: World, state: RecordedState) -> str | None:
     """The first field where a recorded state differs from the re-simulated world."""
     if state.digest != world.state_digest():
         return f"state_digest recorded {state.digest}, re-simulated {world.state_digest()}"
@@ -150,7 +153,7 @@ def verify_recording(path: str | os.PathLike) -> VerifyReport:
                 state = episode.states.get(world.t)
                 if state is None:
                     continue
-                difference = _difference(world, state)
+                difference = difference_from(world, state)
                 report.states_checked += 1
                 if difference:
                     report.ok = False
@@ -204,44 +207,3 @@ def view_recording(path: str | os.PathLike, view, rate: float = 1.0, dt: float =
             view.publish(world, final=world.done or world.t not in episode.actions)
             steps += int(world.t > 0)
     return steps
-
-
-def republish(path: str | os.PathLike, rate: float = 1.0, domain_id: int | None = None,
-              topics: tuple[str, ...] = (), wait_s: float = 1.0, log=print) -> dict:
-    """Publish the recorded messages again (their CDR bytes, with their recorded types and
-    QoS) on the recorded clock: a message recorded ``d`` seconds after the first is sent
-    ``d / rate`` seconds after the start (``rate`` 0: as fast as possible). ``/clock`` is
-    among them, so nodes with ``use_sim_time`` follow the recorded sim time. Playing starts
-    once every topic has a subscriber, or after ``wait_s``."""
-    from rclpy.duration import Duration
-    from rclpy.node import Node
-
-    from .env import ros_session
-    from .recorder import from_bag_qos, message_class
-
-    recording = Recording(path)
-    if recording.streamed:
-        log(f"note: {recording.describe()}")
-    chosen = {t: info for t, info in recording.topics.items() if not topics or t in topics}
-    sent = dict.fromkeys(chosen, 0)
-    with ros_session(domain_id) as executor:
-        node = Node("replay")
-        executor.add_node(node)
-        publishers = {t: node.create_publisher(message_class(info.msgtype), t, from_bag_qos(info.qos))
-                      for t, info in chosen.items()}
-        wait_until = time.monotonic() + wait_s
-        while time.monotonic() < wait_until and any(p.get_subscription_count() == 0 for p in publishers.values()):
-            executor.spin_once(timeout_sec=0.05)
-        start, first = time.monotonic(), None
-        for message in recording.messages(chosen):
-            first = message.log_time if first is None else first
-            if rate > 0:
-                delay = start + (message.log_time - first) / 1e9 / rate - time.monotonic()
-                if delay > 0:
-                    time.sleep(delay)
-            publishers[message.topic].publish(message.data)
-            sent[message.topic] += 1
-        for publisher in publishers.values():
-            publisher.wait_for_all_acked(Duration(seconds=2.0))
-    return {"recording": str(path), "messages": sum(sent.values()), "topics": sent,
-            "seconds": time.monotonic() - start}
