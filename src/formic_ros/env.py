@@ -4,17 +4,91 @@ Discovery stays on this machine unless the user says otherwise
 (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` is set only when the variable is absent), and the
 domain id is explicit, so two runs on one network or one machine do not mix. Set these before
 ``rclpy.init``: rcl reads them when the context starts.
+
+Fast DDS gets a shipped XML profile (``FASTRTPS_DEFAULT_PROFILES_FILE``: the variable the Fast
+DDS 2.14 in the PyPI wheels reads; ``FASTDDS_DEFAULT_PROFILES_FILE`` is Fast DDS 3's name) unless
+the user set one:
+
+* default: UDPv4 bound to the loopback interface only, plus shared memory (no shared memory when
+  ``FASTDDS_BUILTIN_TRANSPORTS=UDPv4``), so nothing listens on other interfaces;
+* ``FORMIC_DDS_NETWORK=hosts`` (``--hosts-network``): Fast DDS's builtin transports on every
+  interface, for a world and agents on several machines;
+* both: a 50 ms reliable-writer heartbeat, so a sample lost on a lossy link is repaired within
+  ~100 ms instead of at the 3 s default (past the world's 1 s deadline).
 """
 
 from __future__ import annotations
 
 import os
 import signal
+import sys
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
+from pathlib import Path
 
 DISCOVERY_VARIABLE = "ROS_AUTOMATIC_DISCOVERY_RANGE"
 DOMAIN_VARIABLE = "ROS_DOMAIN_ID"
+PROFILE_VARIABLE = "FASTRTPS_DEFAULT_PROFILES_FILE"
+PROFILE_VARIABLE_V3 = "FASTDDS_DEFAULT_PROFILES_FILE"
+NETWORK_VARIABLE = "FORMIC_DDS_NETWORK"
+WARNED_VARIABLE = "_FORMIC_HOSTS_WARNED"
+PROFILE_DIR = Path(__file__).resolve().parent / "fastdds"
+PROFILES = {"loopback": PROFILE_DIR / "loopback.xml", "loopback_udp": PROFILE_DIR / "loopback_udp.xml",
+            "hosts": PROFILE_DIR / "hosts.xml"}
+HOSTS_WARNING = ("formic: multi-host DDS (FORMIC_DDS_NETWORK=hosts): this domain's UDP ports "
+                 "(7400+250*domain and up) listen on every network interface; anyone who reaches "
+                 "them can read the world and drive agents (no DDS security in the pip wheels)")
+
+
+def network_mode(env: Mapping[str, str]) -> str:
+    """``"hosts"`` or ``"loopback"``, from ``FORMIC_DDS_NETWORK`` (default loopback)."""
+    value = env.get(NETWORK_VARIABLE, "").strip().lower()
+    if value in ("", "loopback", "local", "localhost"):
+        return "loopback"
+    if value in ("hosts", "host", "network", "all"):
+        return "hosts"
+    raise ValueError(f"{NETWORK_VARIABLE}={value!r}: expected 'loopback' or 'hosts'")
+
+
+def shipped_profile(env: Mapping[str, str]) -> Path:
+    """The shipped Fast DDS profile for this environment."""
+    if network_mode(env) == "hosts":
+        return PROFILES["hosts"]
+    if env.get("FASTDDS_BUILTIN_TRANSPORTS", "").strip().upper() == "UDPV4":
+        return PROFILES["loopback_udp"]
+    return PROFILES["loopback"]
+
+
+def _is_shipped(path: str) -> bool:
+    try:
+        return Path(path).resolve().parent == PROFILE_DIR and Path(path).name in {p.name for p in PROFILES.values()}
+    except OSError:
+        return False
+
+
+def apply_profile(env: dict[str, str]) -> None:
+    """Point Fast DDS at the shipped profile unless the user set their own (a shipped one is
+    re-chosen, so a child that changes ``FASTDDS_BUILTIN_TRANSPORTS`` or ``FORMIC_DDS_NETWORK``
+    gets the matching file)."""
+    user = env.get(PROFILE_VARIABLE) or env.get(PROFILE_VARIABLE_V3)
+    if user and not _is_shipped(user):
+        env.setdefault(PROFILE_VARIABLE, user)
+        env.setdefault(PROFILE_VARIABLE_V3, user)
+        return
+    path = str(shipped_profile(env))
+    env[PROFILE_VARIABLE] = path
+    env[PROFILE_VARIABLE_V3] = path
+
+
+def warn_if_exposed(env: Mapping[str, str] | None = None, stream=None) -> bool:
+    """Print :data:`HOSTS_WARNING` to stderr when multi-host DDS is selected, once per process
+    tree (a marker in this process's environment passes to children made after the call)."""
+    env = os.environ if env is None else env
+    if network_mode(env) != "hosts" or env.get(WARNED_VARIABLE) == "1" or os.environ.get(WARNED_VARIABLE) == "1":
+        return False
+    print(HOSTS_WARNING, file=stream or sys.stderr, flush=True)
+    os.environ[WARNED_VARIABLE] = "1"
+    return True
 
 
 def ros_environment(domain_id: int | None = None, base: Mapping[str, str] | None = None) -> dict[str, str]:
@@ -24,6 +98,7 @@ def ros_environment(domain_id: int | None = None, base: Mapping[str, str] | None
     SIGKILL: the tests use it)."""
     env = dict(os.environ if base is None else base)
     env.setdefault(DISCOVERY_VARIABLE, "LOCALHOST")
+    apply_profile(env)
     if domain_id is not None:
         env[DOMAIN_VARIABLE] = str(domain_id)
     env["PYTHONUNBUFFERED"] = "1"
@@ -32,8 +107,11 @@ def ros_environment(domain_id: int | None = None, base: Mapping[str, str] | None
 
 
 def configure_this_process(domain_id: int | None = None) -> None:
-    """Apply :func:`ros_environment` to this process (call before ``rclpy.init``)."""
-    os.environ.update(ros_environment(domain_id))
+    """Apply :func:`ros_environment` to this process (call before ``rclpy.init``); warn once
+    (per process tree) when multi-host DDS is selected."""
+    env = ros_environment(domain_id)
+    warn_if_exposed(env)
+    os.environ.update(env)
 
 
 def check_domain_id(domain_id: int | None) -> None:
