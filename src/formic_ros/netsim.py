@@ -1,0 +1,191 @@
+"""Two "machines" on one Linux host, joined by a link with delay and loss (root only).
+
+This kernel may lack netem, so the link is a userspace layer-2 forwarder: two network
+namespaces (``<prefix>a``, ``<prefix>b``) each get one end of a veth pair whose other end lies
+in a third namespace (``<prefix>r``), where :func:`forward` copies Ethernet frames between the
+two ends with a fixed one-way delay and a seeded random loss of IPv4 packets. Veth leaves UDP
+checksums unfilled (offload), so the forwarder zeroes them (valid for IPv4: "no checksum").
+
+Use only for tests and measurements::
+
+    with Link("fx", delay_ms=20, loss=0.02, seed=1) as link:
+        subprocess.run(link.exec_in("a") + ["python", "-c", "..."])   # address link.addr("a")
+
+or from a shell: ``python -m formic_ros.netsim forward IF1 IF2 --delay-ms 20 --loss 0.02``
+(inside the router namespace).
+"""
+
+from __future__ import annotations
+
+import argparse
+import heapq
+import os
+import random
+import select
+import shutil
+import signal
+import socket
+import struct
+import subprocess
+import sys
+import time
+
+ETH_P_ALL = 0x0003
+PACKET_OUTGOING = 4
+
+
+def namespaces_available() -> bool:
+    """Whether this process can create network namespaces (root, ``ip`` present)."""
+    if shutil.which("ip") is None or os.geteuid() != 0:
+        return False
+    name = f"fxprobe{os.getpid()}"
+    try:
+        ok = subprocess.run(["ip", "netns", "add", name], capture_output=True, timeout=10).returncode == 0
+    except (OSError, subprocess.TimeoutExpired):
+        return False
+    if ok:
+        subprocess.run(["ip", "netns", "del", name], capture_output=True, timeout=10)
+    return ok
+
+
+def _zero_udp_checksum(frame: bytearray) -> None:
+    if len(frame) < 34 or frame[12:14] != b"\x08\x00":
+        return
+    ihl = (frame[14] & 0x0F) * 4
+    frag = struct.unpack_from("!H", frame, 20)[0] & 0x1FFF
+    if frame[23] == 17 and frag == 0 and len(frame) >= 14 + ihl + 8:
+        frame[14 + ihl + 6:14 + ihl + 8] = b"\x00\x00"
+
+
+def forward(if1: str, if2: str, delay_ms: float = 0.0, loss: float = 0.0, seed: int = 0,
+            duration_s: float | None = None) -> dict:
+    """Relay frames between two interfaces of this namespace (both directions), each IPv4 frame
+    dropped with probability ``loss`` and sent ``delay_ms`` after it arrived. Runs until
+    SIGTERM/SIGINT or ``duration_s``; returns counts."""
+    rng = random.Random(seed)
+    socks = {}
+    for name in (if1, if2):
+        s = socket.socket(socket.AF_PACKET, socket.SOCK_RAW, socket.htons(ETH_P_ALL))
+        s.bind((name, 0))
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 22)
+        socks[name] = s
+    peer = {socks[if1]: socks[if2], socks[if2]: socks[if1]}
+    queue: list = []
+    seq = 0
+    counts = {"forwarded": 0, "dropped": 0}
+    stop = []
+    signal.signal(signal.SIGTERM, lambda *a: stop.append(1))
+    end = None if duration_s is None else time.monotonic() + duration_s
+    delay = delay_ms / 1e3
+    try:
+        while not stop and (end is None or time.monotonic() < end):
+            now = time.monotonic()
+            while queue and queue[0][0] <= now:
+                _, _, out, frame = heapq.heappop(queue)
+                try:
+                    out.send(frame)
+                    counts["forwarded"] += 1
+                except OSError:
+                    pass
+            timeout = 0.05 if not queue else max(0.0, queue[0][0] - time.monotonic())
+            ready, _, _ = select.select(list(peer), [], [], timeout)
+            for s in ready:
+                try:
+                    data, addr = s.recvfrom(65536)
+                except OSError:
+                    continue
+                if addr[2] == PACKET_OUTGOING:
+                    continue
+                frame = bytearray(data)
+                if frame[12:14] == b"\x08\x00" and loss > 0 and rng.random() < loss:
+                    counts["dropped"] += 1
+                    continue
+                _zero_udp_checksum(frame)
+                seq += 1
+                heapq.heappush(queue, (time.monotonic() + delay, seq, peer[s], bytes(frame)))
+    except KeyboardInterrupt:
+        pass
+    finally:
+        for s in socks.values():
+            s.close()
+    return counts
+
+
+def _ip(*args: str, check: bool = True) -> None:
+    subprocess.run(["ip", *args], check=check, capture_output=True, timeout=10)
+
+
+class Link:
+    """Namespaces ``<prefix>a`` (``10.<net>.0.1``) and ``<prefix>b`` (``10.<net>.0.2``) joined
+    through a forwarder in ``<prefix>r``. Everything is removed on exit."""
+
+    def __init__(self, prefix: str, delay_ms: float = 0.0, loss: float = 0.0, seed: int = 0, net: int = 213):
+        self.prefix, self.delay_ms, self.loss, self.seed, self.net = prefix, delay_ms, loss, seed, net
+        self.forwarder: subprocess.Popen | None = None
+
+    def ns(self, side: str) -> str:
+        return f"{self.prefix}{side}"
+
+    def addr(self, side: str) -> str:
+        return f"10.{self.net}.0.{1 if side == 'a' else 2}"
+
+    def exec_in(self, side: str) -> list[str]:
+        return ["ip", "netns", "exec", self.ns(side)]
+
+    def __enter__(self) -> "Link":
+        try:
+            self.close()
+            for side in "abr":
+                _ip("netns", "add", self.ns(side))
+                _ip("-n", self.ns(side), "link", "set", "lo", "up")
+            for side in "ab":
+                host, router = f"{self.prefix}{side}0", f"{self.prefix}{side}1"
+                _ip("link", "add", host, "netns", self.ns(side), "type", "veth", "peer", "name", router,
+                    "netns", self.ns("r"))
+                _ip("-n", self.ns(side), "addr", "add", f"{self.addr(side)}/24", "dev", host)
+                _ip("-n", self.ns(side), "link", "set", host, "up")
+                _ip("-n", self.ns("r"), "link", "set", router, "up")
+            self.forwarder = subprocess.Popen(
+                self.exec_in("r") + [sys.executable, "-m", "formic_ros.netsim", "forward",
+                                     f"{self.prefix}a1", f"{self.prefix}b1", "--delay-ms", str(self.delay_ms),
+                                     "--loss", str(self.loss), "--seed", str(self.seed)],
+                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+            time.sleep(0.3)
+        except BaseException:
+            self.close()
+            raise
+        return self
+
+    def close(self) -> None:
+        if self.forwarder is not None:
+            try:
+                os.killpg(self.forwarder.pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+            self.forwarder.wait(timeout=10)
+            self.forwarder = None
+        for side in "abr":
+            _ip("netns", "del", self.ns(side), check=False)
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m formic_ros.netsim")
+    sub = parser.add_subparsers(dest="command", required=True)
+    f = sub.add_parser("forward", help="relay frames between two interfaces with delay and loss")
+    f.add_argument("if1")
+    f.add_argument("if2")
+    f.add_argument("--delay-ms", type=float, default=0.0)
+    f.add_argument("--loss", type=float, default=0.0)
+    f.add_argument("--seed", type=int, default=0)
+    f.add_argument("--duration-s", type=float)
+    args = parser.parse_args(argv)
+    counts = forward(args.if1, args.if2, args.delay_ms, args.loss, args.seed, args.duration_s)
+    print(counts, flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
