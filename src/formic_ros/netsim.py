@@ -171,6 +171,74 @@ class Link:
         self.close()
 
 
+EMPTY_PROFILE = """<?xml version="1.0" encoding="UTF-8" ?>
+<dds xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles"><profiles/></dds>
+"""
+
+
+def _json_line(text: str) -> dict:
+    import json
+
+    for line in reversed(text.splitlines()):
+        if line.startswith("{"):
+            return json.loads(line)
+    raise ValueError(f"no JSON line in:\n{text[-3000:]}")
+
+
+def lockstep_across_link(agents: int = 16, steps: int = 60, size: int = 32, seed: int = 0,
+                         delay_ms: float = 20.0, loss: float = 0.02, link_seed: int = 1,
+                         fastdds_defaults: bool = False, domain_id: int = 147, prefix: str = "fxl",
+                         limit_s: float = 120.0, workdir: str = "/tmp") -> dict:
+    """``formic world`` in namespace a, ``formic agents`` (per-agent, learned ``formic``) in b,
+    lockstep over a link with ``delay_ms`` each way and ``loss``; returns the world's JSON
+    summary plus ``link``. ``fastdds_defaults``: an empty user profile (Fast DDS's own 3 s
+    heartbeat) instead of the shipped one. Both sides use UDPv4 only (no shared memory between
+    namespaces of one host) and name each other in ``ROS_STATIC_PEERS``."""
+    from .env import ros_environment
+
+    world_args = ["--agents", str(agents), "--size", str(size), "--steps", str(steps), "--seed", str(seed)]
+    with Link(prefix, delay_ms=delay_ms, loss=loss, seed=link_seed) as link:
+        base = dict(os.environ, FASTDDS_BUILTIN_TRANSPORTS="UDPv4", FORMIC_DDS_NETWORK="hosts",
+                    ROS_AUTOMATIC_DISCOVERY_RANGE="SUBNET", _FORMIC_HOSTS_WARNED="1")
+        base.pop("FASTRTPS_DEFAULT_PROFILES_FILE", None)
+        base.pop("FASTDDS_DEFAULT_PROFILES_FILE", None)
+        if fastdds_defaults:
+            path = os.path.join(workdir, f"{prefix}_empty_profile.xml")
+            with open(path, "w") as fh:
+                fh.write(EMPTY_PROFILE)
+            base["FASTRTPS_DEFAULT_PROFILES_FILE"] = path
+        env_a = ros_environment(domain_id, dict(base, ROS_STATIC_PEERS=link.addr("b")))
+        env_b = ros_environment(domain_id, dict(base, ROS_STATIC_PEERS=link.addr("a")))
+        formic = [sys.executable, "-m", "formic_cli.main"]
+        procs = []
+        try:
+            logs = [open(os.path.join(workdir, f"{prefix}_{side}.log"), "w+") for side in "ab"]
+            started = time.monotonic()
+            world = subprocess.Popen(link.exec_in("a") + formic + ["world", *world_args, "--json",
+                                                                  "--startup-timeout", str(limit_s / 2)],
+                                     env=env_a, stdout=logs[0], stderr=subprocess.STDOUT, start_new_session=True)
+            procs.append(world)
+            host = subprocess.Popen(link.exec_in("b") + formic + ["agents", "--ids", f"0-{agents - 1}",
+                                                                 "--policy", "formic", "--once"],
+                                    env=env_b, stdout=logs[1], stderr=subprocess.STDOUT, start_new_session=True)
+            procs.append(host)
+            world.wait(timeout=limit_s)
+            elapsed = time.monotonic() - started
+            logs[0].seek(0)
+            summary = _json_line(logs[0].read())
+            summary["link"] = {"delay_ms": delay_ms, "loss": loss, "seed": link_seed,
+                               "profile": "fastdds-defaults" if fastdds_defaults else "formic",
+                               "wall_s": round(elapsed, 1)}
+            return summary
+        finally:
+            for p in procs:
+                try:
+                    os.killpg(p.pid, signal.SIGKILL)
+                except ProcessLookupError:
+                    pass
+                p.wait(timeout=10)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m formic_ros.netsim")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -181,7 +249,20 @@ def main(argv: list[str] | None = None) -> int:
     f.add_argument("--loss", type=float, default=0.0)
     f.add_argument("--seed", type=int, default=0)
     f.add_argument("--duration-s", type=float)
+    b = sub.add_parser("bench", help="lockstep world | agents across a lossy link (root)")
+    b.add_argument("--agents", type=int, default=16)
+    b.add_argument("--steps", type=int, default=60)
+    b.add_argument("--delay-ms", type=float, default=20.0)
+    b.add_argument("--loss", type=float, default=0.02)
+    b.add_argument("--fastdds-defaults", action="store_true", help="Fast DDS's own settings (3 s heartbeat)")
     args = parser.parse_args(argv)
+    if args.command == "bench":
+        import json
+
+        r = lockstep_across_link(args.agents, args.steps, delay_ms=args.delay_ms, loss=args.loss,
+                                 fastdds_defaults=args.fastdds_defaults)
+        print(json.dumps({k: r.get(k) for k in ("steps_per_s", "missed_actions", "state_digest", "link")}))
+        return 0
     counts = forward(args.if1, args.if2, args.delay_ms, args.loss, args.seed, args.duration_s)
     print(counts, flush=True)
     return 0
