@@ -26,6 +26,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--agent", type=int, required=True, help="agent id to drive")
     parser.add_argument("--namespace", default="/formic")
+    parser.add_argument("--domain-id", type=int, help="ROS_DOMAIN_ID of the run (as `formic run --domain-id`)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the random moves")
     args = parser.parse_args()
     # Discover only on this machine, like the rest of the system (unset to reach other hosts).
@@ -58,6 +59,14 @@ def main() -> None:
             self.last = AgentAction(step=obs.step, agent_id=args.agent, action=action)
             self.publisher.publish(self.last)
 
+    if args.domain_id is not None:
+        os.environ["ROS_DOMAIN_ID"] = str(args.domain_id)
+    try:  # ForMIC's DDS settings (loopback-only transports, fast repair) when it is installed
+        from formic_ros.env import configure_this_process
+
+        configure_this_process(args.domain_id)
+    except ImportError:
+        pass
     rclpy.init()
     node = ExternalAgent()
     node.get_logger().info(f"driving agent {args.agent}")
