@@ -3,6 +3,7 @@ ROS and torch are imported inside the commands, so ``formic --help`` stays insta
 
 from __future__ import annotations
 
+import re
 import sys
 from pathlib import Path
 
@@ -13,6 +14,26 @@ from .summary import emit_json
 
 NAMESPACE_HELP = "ROS namespace of the ForMIC topics and nodes."
 DOMAIN_HELP = "ROS_DOMAIN_ID for this process (default: the environment's)."
+
+_AGENT_PART = re.compile(r"(?<=/)agent_\d+(?=/|$)")
+
+
+def grouped_topic_lines(counts: dict[str, int]) -> list[str]:
+    """One line per topic, the per-agent topics (``.../agent_<i>/...``) grouped into one line
+    with their number and min/max message counts."""
+    groups: dict[str, list[int]] = {}
+    lines = []
+    for topic, count in sorted(counts.items()):
+        pattern = _AGENT_PART.sub("agent_*", topic)
+        if pattern == topic:
+            lines.append(f"{topic}: {count}")
+        else:
+            groups.setdefault(pattern, []).append(count)
+    for pattern, values in sorted(groups.items()):
+        lines.append(f"{pattern} ({len(values)} topics): {min(values)}-{max(values)} each"
+                     if min(values) != max(values) else f"{pattern} ({len(values)} topics): {values[0]} each")
+    return lines
+
 
 
 def _log(text: str) -> None:
@@ -55,8 +76,8 @@ def record_command(out, topics, namespace, domain_id, model, duration, chunk_kb,
         emit_json(result)
         return
     click.echo(f"wrote {result['recording']}: {result['messages']} messages on {len(result['topics'])} topics")
-    for topic, count in sorted(result["topics"].items()):
-        click.echo(f"  {topic}: {count}")
+    for line in grouped_topic_lines(result["topics"]):
+        click.echo(f"  {line}")
     for topic, why in result["skipped"].items():
         click.echo(f"  not recorded: {topic} ({why})")
 
