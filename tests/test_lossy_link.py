@@ -20,8 +20,10 @@ def test_lockstep_survives_lossy_link(tmp_path):
     summary = lockstep_across_link(agents=16, steps=60, size=32, seed=0, delay_ms=20, loss=0.02,
                                    prefix="fxlt", limit_s=150, workdir=str(tmp_path))
     n_actions = 16 * 60
+    # The speed (5.9 steps/s measured, 1.1 with Fast DDS's defaults) is a benchmark figure
+    # (`python -m formic_ros.netsim bench`, docs/ros.md), not asserted here; a lost sample
+    # repaired only at the default 3 s heartbeat shows as missed actions, which are.
     assert summary["missed_actions"] <= 0.01 * n_actions, summary
-    assert summary["steps_per_s"] >= 5.0, summary
     if summary["missed_actions"] == 0:
         sim = subprocess.run([sys.executable, "-m", "formic_cli.main", "sim", "--agents", "16", "--size", "32",
                               "--steps", "60", "--seed", "0", "--json", "--out", str(tmp_path / "sim")],
