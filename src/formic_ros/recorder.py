@@ -47,8 +47,9 @@ def message_class(msgtype: str):
 
 
 def subscription_qos(latched: bool) -> QoSProfile:
-    if latched:
-        return topics.LATCHED
+    if latched:  # keep-all too: a depth-1 reader drops a map that a newer one follows quickly
+        return QoSProfile(history=HistoryPolicy.KEEP_ALL, depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
     # Keep all: a reader history that drops its oldest samples loses messages whenever this
     # process falls behind (measured: applied actions lost at 1,000 steps/s); keep-all holds
     # them until the callbacks catch up (the world's logs keep LOG_DEPTH for the same reason).
