@@ -246,8 +246,7 @@ def record(out: str | Path, options: RecorderOptions, domain_id: int | None = No
 
 
 def recorders_present(node: Node) -> int:
-    """How many recorder nodes the graph shows in ``node``'s namespace (a world waits for
-    those present when it starts, told about or not)."""
+    """Recorder nodes in ``node``'s namespace (a world waits for those present at start)."""
     namespace = node.get_namespace()
     return sum(name == RECORDER_NODE and ns == namespace for name, ns in node.get_node_names_and_namespaces())
 
