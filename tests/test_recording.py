@@ -37,72 +37,74 @@ DOMAIN_ID = 150 + os.getpid() % 60
 
 # A stand-in for the world node: a real World episode on the conventional topics.
 PUBLISHER = r'''
-import array, json, sys, time
+import json, sys, time
 import numpy as np
 import rclpy
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-from builtin_interfaces.msg import Time
-from formic_interfaces.msg import ActionBatch, AgentAction, ScenarioDescription, WorldState
-from rosgraph_msgs.msg import Clock
+from formic_interfaces.msg import (ActionBatch, AgentAction, AgentObservation, ObservationBatch,
+                                   ScenarioDescription, WorldState)
 from std_msgs.msg import Float64
+from formic_ros import convert, qos
 from formic_world import World, WorldConfig, generate_scenario
 
 steps, rate_hz, recorders = int(sys.argv[1]), float(sys.argv[2]), int(sys.argv[3])
-latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
-stream = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
+N = 4
 rclpy.init()
 node = Node("world", namespace="/formic")
-pubs = {
-    "scenario": node.create_publisher(ScenarioDescription, "scenario", latched),
-    "state": node.create_publisher(WorldState, "state", stream),
-    "applied_actions": node.create_publisher(ActionBatch, "applied_actions", stream),
-    "score": node.create_publisher(Float64, "score", stream),
-    "clock": node.create_publisher(Clock, "/clock", stream),
-    "agent_action": node.create_publisher(AgentAction, "agent_0/action", stream),
-}
-scenario = generate_scenario(WorldConfig(height=16, width=16, n_agents=4, episode_steps=steps), 3)
+types = {"scenario": ScenarioDescription, "state": WorldState, "applied_actions": ActionBatch, "score": Float64,
+         "clock": convert.Clock, "agent_action": AgentAction, "observations": ObservationBatch,
+         "map": convert.OccupancyGrid, "agent_markers": convert.MarkerArray}
+names = {"agent_action": "agent_0/action", "clock": "/clock"}
+leaf = {"agent_action": qos.AGENT_ACTION}
+pubs = {k: node.create_publisher(t, names.get(k, k), qos.TOPICS[leaf.get(k, names.get(k, k))].qos) for k, t in types.items()}
+for a in range(N):
+    pubs[f"agent_{a}/observation"] = node.create_publisher(AgentObservation, f"agent_{a}/observation", qos.STREAM)
+scenario = generate_scenario(WorldConfig(height=16, width=16, n_agents=N, episode_steps=steps), 3)
 world = World(scenario)
 deadline = time.monotonic() + 20
 while any(p.get_subscription_count() < recorders for p in pubs.values()) and time.monotonic() < deadline:
     time.sleep(0.02)
 
-def arr(code, values, dtype):
-    out = array.array(code)
-    out.frombytes(np.ascontiguousarray(values, dtype=dtype).tobytes())
-    return out
-
-def state():
-    w = world
-    return WorldState(step=w.t, height=16, width=16, score=w.score, grid=w.grid.astype(np.uint8).tobytes(),
-                      pheromone=arr("f", w.visible_pheromone(), np.float32),
-                      agent_rows=arr("i", w.pos[:, 0], np.int32), agent_cols=arr("i", w.pos[:, 1], np.int32),
-                      agent_loads=arr("f", w.loads, np.float32), agent_queues=arr("i", w.queue_of, np.int32),
-                      state_digest=w.state_digest())
-
 counts = dict.fromkeys(pubs, 0)
 def publish(name, msg):
     pubs[name].publish(msg); counts[name] += 1
 
-publish("scenario", ScenarioDescription(format_version=1, seed=3, config_digest=scenario.config.digest(),
-                                         scenario_json=scenario.to_json(), policies="random:0-3"))
-publish("state", state())
+def observations(result):
+    fields = dict(step=world.t, observations=result.observations, action_mask=result.action_mask,
+                  loads=world.loads, rewards=result.rewards, queued=world.queued, positions=world.pos,
+                  world_shape=world.grid.shape, done=result.done)
+    publish("observations", convert.observation_batch(**fields, train_masks=world.training_action_mask(result.action_mask)))
+    for a, msg in enumerate(convert.agent_observations(agent_ids=np.arange(N), **fields)):
+        publish(f"agent_{a}/observation", msg)
+
+def state():
+    publish("state", convert.world_state(world, np.zeros(N, dtype=np.int64)))
+    publish("clock", convert.clock(world.t, 0.1))
+    if world.t % 10 == 0 or world.done:
+        stamp = convert.sim_time(world.t, 0.1)
+        publish("score", Float64(data=world.score))
+        publish("map", convert.occupancy_grid(world, stamp))
+        publish("agent_markers", convert.agent_markers(world, stamp))
+
+publish("scenario", convert.scenario_description(scenario, "random:0-3"))
+result = world.last_result
+state()
 rng = np.random.default_rng(7)
 print("stepping", flush=True)
 for t in range(steps):
+    observations(result)
     mask = world.action_mask()
     actions = np.array([rng.choice(np.flatnonzero(m)) if m.any() else 4 for m in mask])
     if t % 5 == 0:
         actions[1] = -1  # agent 1's action "did not arrive": NO_ACTION, 255 on the wire
-    world.step(actions)
+    result = world.step(actions)
     publish("agent_action", AgentAction(step=t, agent_id=0, action=int(actions[0])))
-    publish("applied_actions", ActionBatch(step=t, agent_ids=arr("I", np.arange(4), np.uint32),
-                                           actions=np.where(actions < 0, 255, actions).astype(np.uint8).tobytes()))
-    publish("state", state())
-    publish("score", Float64(data=world.score))
-    nanos = int(world.t * 0.1 * 1e9)
-    publish("clock", Clock(clock=Time(sec=nanos // 10**9, nanosec=nanos % 10**9)))
+    publish("applied_actions", convert.applied_actions(t, actions))
+    state()
+    if t == steps // 2:
+        print("half", flush=True)
     time.sleep(1 / rate_hz)
+observations(result)
 time.sleep(1.0)  # delivery to the live recorder (acks would wait for the killed one too)
 print(json.dumps({"counts": counts, "digest": world.state_digest(), "scenario": scenario.to_json()}), flush=True)
 node.destroy_node()
@@ -152,8 +154,10 @@ def session(tmp_path_factory):
     try:
         ready, _, _ = select.select([publisher.stdout], [], [], 40)
         assert ready and publisher.stdout.readline().strip() == "stepping", reap(publisher, 5)
-        time.sleep(0.7)
-        os.killpg(procs[1].pid, signal.SIGKILL)  # mid-episode: ~70 of 120 steps published
+        ready, _, _ = select.select([publisher.stdout], [], [], 40)
+        assert ready and publisher.stdout.readline().strip() == "half", reap(publisher, 5)
+        time.sleep(0.6)  # a flush (every 0.5 s) of what the recorder has by then
+        os.killpg(procs[1].pid, signal.SIGKILL)  # mid-episode
         reap(procs[1], 5)
         out, err = reap(publisher, 30)
         assert publisher.returncode == 0, err
@@ -258,6 +262,9 @@ def test_replay_verify_accepts_the_recording(session):
     done = formic("replay", str(session["good"]), "--verify")
     assert done.returncode == 0, done.stdout + done.stderr
     assert done.stdout.startswith("OK") and f"{STEPS + 1} recorded states" in done.stdout
+    published = session["published"]["counts"]
+    assert f"{sum(published.values()) - published['scenario'] - published['agent_action'] - published['applied_actions']}"\
+        " recorded messages on" in done.stdout
 
 
 def _tampered_copy(source: Path, target: Path, change) -> None:
@@ -376,3 +383,125 @@ def test_recording_io_imports_no_rclpy():
     code = "import sys, formic_record.bag, formic_record.replay; print(any(m.startswith('rclpy') for m in sys.modules))"
     out = subprocess.run([PYTHON, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
+
+
+def _flip(values, index: int, dtype):
+    """A copy of an array field with one byte of element ``index`` flipped."""
+    import numpy as np
+
+    out = np.array(values, dtype=dtype)
+    out.view(np.uint8)[index * out.itemsize] ^= 0x01
+    return out
+
+
+@pytest.mark.parametrize("topic, field", [
+    ("/formic/agent_2/observation", "data"), ("/formic/observations", "loads"), ("/formic/state", "grid"),
+    ("/formic/state", "pheromone"), ("/clock", "clock"), ("/formic/map", "data"), ("/formic/score", "data"),
+])
+def test_replay_verify_detects_one_changed_byte(session, topic, field):
+    import numpy as np
+
+    def change(name, msg, index):
+        if name != topic or index != 3:
+            return False
+        if field == "clock":
+            msg.clock.nanosec ^= 1
+        elif field == "data" and topic == "/formic/score":
+            msg.data = float(_flip([msg.data], 0, np.float64)[0])
+        else:
+            values = getattr(msg, field)
+            position = int(np.flatnonzero(np.asarray(values))[0]) if np.asarray(values).any() else 0
+            setattr(msg, field, _flip(values, position, np.asarray(values).dtype))
+        return True
+
+    target = session["tmp"] / f"flipped-{topic.strip('/').replace('/', '-')}-{field}"
+    _tampered_copy(session["good"], target, change)
+    report = verify_recording(target)
+    assert not report.ok and topic in report.mismatches, report.summary()
+    assert report.mismatches[topic]["count"] >= 1
+    done = formic("replay", str(target), "--verify")
+    assert done.returncode == 1 and topic in done.stdout and "Traceback" not in done.stderr
+
+
+def _corrupt_offsets(mcap: Path) -> dict[str, int]:
+    from mcap.reader import make_reader
+
+    with mcap.open("rb") as handle:
+        summary = make_reader(handle).get_summary()
+    chunk = sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset)[1]
+    size = mcap.stat().st_size
+    footer_start = size - 8 - 29
+    with mcap.open("rb") as handle:
+        handle.seek(footer_start + 9)
+        summary_start = int.from_bytes(handle.read(8), "little")
+    return {"header": 22, "chunk": chunk.chunk_start_offset + 53 + chunk.compressed_size // 2,
+            "summary": summary_start + 12, "footer": size - 8 - 2}
+
+
+@pytest.mark.parametrize("where", ["header", "chunk", "summary", "footer"])
+def test_a_flipped_file_byte_is_a_clean_error(session, where):
+    import shutil
+
+    results = {}
+    for mode in ("--verify", "--repair"):
+        target = session["tmp"] / f"corrupt-{where}{mode}"
+        shutil.copytree(session["good"], target)
+        mcap = target / "good.mcap"
+        data = bytearray(mcap.read_bytes())
+        data[_corrupt_offsets(mcap)[where]] ^= 0x40
+        mcap.write_bytes(bytes(data))
+        results[mode] = done = formic("replay", str(target), mode)
+        assert "Traceback" not in done.stderr, done.stderr
+    verify, repair = results["--verify"], results["--repair"]
+    assert verify.returncode != 0 and "corrupted" in verify.stderr, verify.stdout + verify.stderr
+    assert len(verify.stderr.strip().splitlines()) == 1, verify.stderr
+    assert "nothing to repair" not in repair.stdout
+    assert "corrupted" in repair.stdout + repair.stderr, repair.stdout + repair.stderr
+    if repair.returncode == 0:  # rebuilt: what it kept verifies
+        assert "dropped" in repair.stdout
+        kept = session["tmp"] / f"corrupt-{where}--repair"
+        assert Recording(kept).corruption() is None
+
+
+@pytest.mark.parametrize("signals", [(signal.SIGINT, signal.SIGINT), (signal.SIGHUP,), (signal.SIGTERM, signal.SIGHUP)])
+def test_recorder_closes_the_recording_on_repeated_signals_and_sighup(tmp_path, signals):
+    out = tmp_path / "rec"
+    proc = spawn([PYTHON, "-m", "formic_cli.main", "record", "--out", str(out)])
+    try:
+        ready, _, _ = select.select([proc.stderr], [], [], 60)
+        assert ready and "recording to" in proc.stderr.readline(), reap(proc, 5)
+        for sig in signals:
+            proc.send_signal(sig)
+            time.sleep(0.01)
+        started = time.monotonic()
+        _, err = reap(proc, 15)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert time.monotonic() - started < 10
+    assert proc.returncode == 0 and "Traceback" not in err, err
+    assert (out / "metadata.yaml").is_file()
+    recording = Recording(out)
+    assert recording.complete and recording.corruption() is None, recording.describe()
+
+
+@pytest.mark.xfail(strict=True, reason="the world steps before the recorder has matched every per-agent topic "
+                   "(world_node.py must wait with formic_ros.recorder.recorders_matched; see the recording branch)")
+def test_run_record_holds_every_message_of_every_topic(tmp_path):
+    """8 C-SAF-11 agents, per-agent transport, 30 steps: every topic the world publishes holds
+    one message a step (observations: steps + 1, state and clock: steps + 1, applied: steps)."""
+    steps, agents, out = 30, 8, tmp_path / "run"
+    done = formic("run", "--agents", str(agents), "--size", "24", "--steps", str(steps), "--policy", "csaf11",
+                  "--transport", "per-agent", "--record", str(out), "--json", "--timeout", "150", timeout=200)
+    assert done.returncode == 0, done.stderr[-3000:]
+    recording = Recording(out)
+    store, stepped = recording.typestore(), {}
+    for m in recording.messages():
+        step = store.deserialize_cdr(m.data, m.msgtype).step if m.msgtype.startswith("formic_interfaces") else None
+        stepped.setdefault(m.topic, set()).add(step if step is not None else len(stepped.get(m.topic, ())))
+    everything, applied = set(range(steps + 1)), set(range(steps))  # resent observations count once
+    expected = {"/formic/state": everything, "/clock": everything, "/formic/applied_actions": applied}
+    expected |= {f"/formic/agent_{a}/observation": everything for a in range(agents)}
+    expected |= {f"/formic/agent_{a}/action": applied for a in range(agents)}
+    assert {t: sorted(stepped.get(t, ())) for t in expected} == {t: sorted(v) for t, v in expected.items()}
+    assert verify_recording(out).ok

@@ -121,7 +121,8 @@ def replay_command(recording, verify, republish, repair, live_view, view_port, v
         elif repair:
             report = repair_recording(recording)
             result = {"repaired": report.repaired, "messages": report.messages,
-                      "kept": str(report.kept) if report.kept else None, "note": report.note}
+                      "kept": str(report.kept) if report.kept else None, "note": report.note,
+                      "corrupted": report.corrupted, "dropped": report.dropped}
             if as_json:
                 emit_json(result)
             else:

@@ -85,7 +85,8 @@ class _ChunkedMcapStorage:
                  flush_seconds: float):
         self.path = path / (file_name or f"{path.name}.mcap")
         self._file = self.path.open("xb")
-        self._mcap = McapWriter(self._file, chunk_size=chunk_bytes, compression=CompressionType.ZSTD)
+        self._mcap = McapWriter(self._file, chunk_size=chunk_bytes, compression=CompressionType.ZSTD,
+                                 enable_data_crcs=True)  # DataEnd covers header and metadata too
         self._mcap.start(profile="ros2", library=f"formic-ros {package_version()} (rosbags, mcap)")
         self._schemas: dict[str, int] = {}
         self._channels: dict[int, int] = {}

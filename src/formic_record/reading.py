@@ -18,6 +18,7 @@ from rosbags.rosbag2.metadata import parse_qos
 from ruamel.yaml import YAML
 
 from .bag import REPAIRED_KEY, RUN_INFO_RECORD, BagWriter, typestore_from_schemas
+from .integrity import check_integrity, salvage
 
 KEPT_SUFFIX = ".truncated"  # what --repair keeps of the file it replaced
 
@@ -71,6 +72,9 @@ class Recording:
         self.topics: dict[str, TopicInfo] = {}
         self.run_info: dict[str, str] = {}
         self.stream_error: str | None = None
+        self._corruption: str | None | bool = False  # not checked yet
+        if not self.mcap_path.is_file():
+            raise RecordingError(f"{self.mcap_path}: no such file")
         try:
             self._scan_indexed()
         except Exception:  # noqa: BLE001 - any failure of the index means: stream it
@@ -91,6 +95,18 @@ class Recording:
     @property
     def complete(self) -> bool:
         return not self.streamed and self.problem is None
+
+    def corruption(self) -> str | None:
+        """None when every CRC of the file verifies, else what failed (one line; a full read)."""
+        if self._corruption is False:
+            self._corruption = check_integrity(self.mcap_path)
+        return self._corruption
+
+    def check(self) -> None:
+        """Raise :class:`RecordingError` if the file is corrupted."""
+        problem = self.corruption()
+        if problem:
+            raise RecordingError(problem + " (formic replay --repair keeps what verifies)")
 
     @property
     def message_count(self) -> int:
@@ -154,11 +170,18 @@ class Recording:
         wanted = None if topics is None else set(topics)
         if not self.streamed:
             with self.mcap_path.open("rb") as handle:
-                for schema, channel, message in make_reader(handle).iter_messages(
-                    topics=None if wanted is None else sorted(wanted), log_time_order=True
-                ):
+                found = make_reader(handle, validate_crcs=True).iter_messages(
+                    topics=None if wanted is None else sorted(wanted), log_time_order=True)
+                while True:
+                    try:
+                        schema, channel, message = next(found)
+                    except StopIteration:
+                        return
+                    except Exception as exc:  # noqa: BLE001 - a damaged chunk: a clean error
+                        detail = " ".join(str(exc).split())[:160]
+                        raise RecordingError(f"{self.mcap_path.name}: corrupted: {exc.__class__.__name__}: "
+                                             f"{detail} (formic replay --repair keeps what verifies)") from None
                     yield RecordedMessage(channel.topic, schema.name, message.log_time, message.data)
-            return
         channels: dict[int, tuple[str, str]] = {}
         schema_names: dict[int, str] = {}
         for record in self._stream_records():
@@ -187,35 +210,71 @@ class RepairReport:
     messages: int
     kept: Path | None  # the original file, kept beside the repaired one
     note: str
+    corrupted: bool = False  # CRCs failed (not merely cut short)
+    dropped: int = 0  # messages lost to damaged chunks (when the summary still counted them)
+
+
+def _salvaged_topics(records) -> tuple[dict[str, TopicInfo], dict[str, str], list[RecordedMessage], dict]:
+    schemas: dict[int, Schema] = {}
+    channels: dict[int, Channel] = {}
+    messages, run_info = [], {}
+    for record in records:
+        if isinstance(record, Schema):
+            schemas[record.id] = record
+        elif isinstance(record, Channel):
+            channels[record.id] = record
+        elif isinstance(record, Metadata) and record.name == RUN_INFO_RECORD:
+            run_info.update(record.metadata)
+        elif isinstance(record, Message) and record.channel_id in channels:
+            channel = channels[record.channel_id]
+            schema = schemas.get(channel.schema_id)
+            if schema is not None:
+                messages.append(RecordedMessage(channel.topic, schema.name, record.log_time, record.data))
+    topics = {}
+    for channel in channels.values():
+        if channel.schema_id in schemas:
+            qos = parse_qos(channel.metadata.get("offered_qos_profiles", ""))
+            topics[channel.topic] = TopicInfo(schemas[channel.schema_id].name, 0, qos)
+    for message in messages:
+        topics[message.topic].count += 1
+    definitions = {s.name: s.data.decode() for s in schemas.values()}
+    return topics, definitions, sorted(messages, key=lambda m: m.log_time), run_info
 
 
 def repair_recording(path: str | os.PathLike) -> RepairReport:
     """Rebuild the MCAP summary and ``metadata.yaml`` of a recording cut short (like
-    ``ros2 bag reindex``): every message a streaming read recovers is rewritten into a complete
-    file beside the original, which then takes the original's name atomically; the original
-    stays as ``<name>.mcap.truncated``."""
+    ``ros2 bag reindex``) or corrupted: every message a streaming read recovers from chunks
+    whose CRC verifies is rewritten into a complete file beside the original, which then
+    takes the original's name atomically; the original stays as ``<name>.mcap.truncated``."""
     path = Path(path)
     if not path.is_dir():
         raise RecordingError(f"{path}: --repair works on a recording directory")
     recording = Recording(path)
-    if recording.complete:
-        return RepairReport(False, recording.message_count, None, "recording is complete; nothing to repair")
+    corruption = recording.corruption()
+    if recording.complete and not corruption:
+        return RepairReport(False, recording.message_count, None, "recording is complete and every CRC "
+                            "verifies; nothing to repair")
     original = recording.mcap_path
     kept = original.with_name(original.name + KEPT_SUFFIX)
     if kept.exists():
         raise RecordingError(f"{kept} exists (an earlier repair kept it); move it away first")
+    rescued = salvage(original)
+    topics, definitions, messages, run_info = _salvaged_topics(rescued.records)
+    if not messages:
+        raise RecordingError(f"{original.name}: corrupted beyond repair ({corruption or recording.problem}); "
+                             "no message verifies")
+    expected = recording.message_count if not recording.streamed else 0
+    dropped = max(0, expected - len(messages))
     work = path / ".formic-repair"
     shutil.rmtree(work, ignore_errors=True)
     work.mkdir()
     staged = work / path.name
-    count = 0
-    with BagWriter(staged, typestore=recording.typestore(), file_name=original.name) as writer:
-        for topic, info in recording.topics.items():
+    with BagWriter(staged, typestore=typestore_from_schemas(definitions), file_name=original.name) as writer:
+        for topic, info in topics.items():
             writer.add_topic(topic, info.msgtype, info.qos)
-        for message in recording.messages():
+        for message in messages:
             writer.write(message.topic, message.log_time, message.data)
-            count += 1
-        writer.set_run_info({**recording.run_info, REPAIRED_KEY: original.name + KEPT_SUFFIX})
+        writer.set_run_info({**recording.run_info, **run_info, REPAIRED_KEY: original.name + KEPT_SUFFIX})
     try:
         os.link(original, kept)
     except OSError:
@@ -223,5 +282,9 @@ def repair_recording(path: str | os.PathLike) -> RepairReport:
     os.replace(staged / original.name, original)
     os.replace(staged / "metadata.yaml", path / "metadata.yaml")
     shutil.rmtree(work)
-    note = f"rewrote {count} messages with a full index; the original is kept as {kept.name}"
-    return RepairReport(True, count, kept, note)
+    note = f"rewrote {len(messages)} messages with a full index; the original is kept as {kept.name}"
+    if corruption:
+        lost = f"dropped {dropped} messages" if expected else "dropped an unknown number of messages"
+        note = (f"the file is corrupted ({corruption}); kept {len(messages)} messages that verify, {lost} "
+                f"({rescued.dropped_chunks} damaged chunk(s)); the original is kept as {kept.name}")
+    return RepairReport(True, len(messages), kept, note, corrupted=bool(corruption), dropped=dropped)

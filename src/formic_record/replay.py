@@ -2,9 +2,9 @@
 rclpy, is :func:`formic_ros.recorder.republish`).
 
 The core is deterministic, so the recorded scenario and the actions the world applied
-(``applied_actions``, 255 = none arrived) reproduce every state: verification re-simulates
-with :class:`formic_world.World` and compares each recorded ``WorldState`` (digest, score,
-agent positions) bit for bit. Messages are decoded with the recording's own schemas.
+(``applied_actions``, 255 = none arrived) reproduce every state: verification
+(:mod:`formic_record.verify`) re-simulates with :class:`formic_world.World` and compares every
+message the world published field by field. Messages are decoded with the recording's own schemas.
 """
 
 from __future__ import annotations
@@ -110,69 +110,12 @@ def difference_from(world: World, state: RecordedState) -> str | None:
     return None
 
 
-@dataclass
-class VerifyReport:
-    ok: bool
-    episodes: int
-    states_checked: int
-    steps_simulated: int
-    reading: str  # how the recording was read
-    problems: list[str] = field(default_factory=list)
+def verify_recording(path: str | os.PathLike):
+    """Every CRC, then every message the world published against the re-simulation
+    (:func:`formic_record.verify.verify_recording`)."""
+    from .verify import verify_recording as verify
 
-    def summary(self) -> str:
-        verdict = "OK" if self.ok else "FAILED"
-        text = (f"{verdict}: {self.states_checked} recorded states match the re-simulation bit for bit "
-                f"({self.steps_simulated} steps, {self.episodes} episode(s); {self.reading})")
-        if not self.ok:
-            text = f"{verdict}: " + "; ".join(self.problems) + f" ({self.reading})"
-        elif self.problems:
-            text += "; note: " + "; ".join(self.problems)
-        return text
-
-    def to_dict(self) -> dict:
-        return dict(ok=self.ok, episodes=self.episodes, states_checked=self.states_checked,
-                    steps_simulated=self.steps_simulated, reading=self.reading, problems=self.problems)
-
-
-def verify_recording(path: str | os.PathLike) -> VerifyReport:
-    """Re-simulate every episode from its scenario and applied actions; every recorded state
-    must match. States that cannot be reached (their actions are missing) fail a complete
-    recording, and are only noted for one cut short (its tail is lost by definition)."""
-    recording = Recording(path)
-    episodes = read_episodes(recording)
-    report = VerifyReport(True, len(episodes), 0, 0, recording.describe())
-    if not episodes:
-        report.ok = False
-        report.problems.append("no scenario, state or applied actions in the recording")
-    for number, episode in enumerate(episodes):
-        label = f"episode {number}" if len(episodes) > 1 else "episode"
-        try:
-            worlds = resimulate(episode)
-            for world in worlds:
-                report.steps_simulated += int(world.t > 0)
-                state = episode.states.get(world.t)
-                if state is None:
-                    continue
-                difference = difference_from(world, state)
-                report.states_checked += 1
-                if difference:
-                    report.ok = False
-                    report.problems.append(f"{label}: mismatch at step {world.t}: {difference}")
-                    break
-            else:
-                unchecked = sorted(s for s in episode.states if s > world.t)
-                if unchecked:
-                    what = (f"{label}: {len(unchecked)} recorded states after step {world.t} cannot be "
-                            f"re-simulated (no applied actions for step {world.t})")
-                    report.problems.append(what)
-                    report.ok = report.ok and recording.cut_short
-        except ValueError as exc:
-            report.ok = False
-            report.problems.append(f"{label}: {exc}")
-    if report.ok and report.states_checked == 0:
-        report.ok = False
-        report.problems.append("no recorded state could be checked")
-    return report
+    return verify(path)
 
 
 def render_recording(path: str | os.PathLike, out: str | os.PathLike, scale: int = 4, fps: float = 20) -> int:

@@ -3,17 +3,20 @@
 The recorder node: every ForMIC topic (and ``/clock``) into a rosbag2 recording with MCAP
 storage, as the CDR bytes that arrived (``raw=True``: nothing is decoded on the hot path).
 
-The conventional topics are subscribed at start, so a launcher can wait for the recorder
-before the world steps; the graph is polled for the rest (per-agent topics, anything a user's
-node publishes in the namespace), with the QoS its publishers offer. The latched scenario
+The world's topics are subscribed at start, and every per-agent topic as soon as the latched
+scenario description says how many agents there are, so the world can wait for the recorder
+(:func:`recorders_matched`) before it steps; the graph is polled for the rest (anything a
+user's node publishes in the namespace), with the QoS its publishers offer. The latched scenario
 description becomes the recording's run description (seed, scenario, configuration digest,
-policies, model checkpoint id, package version). SIGINT or SIGTERM closes the recording
-cleanly; a SIGKILL leaves every chunk flushed so far readable (see :mod:`formic_record.bag`).
+policies, model checkpoint id, package version). SIGINT, SIGTERM or SIGHUP closes the
+recording cleanly (further signals wait for the close); a SIGKILL leaves every chunk
+flushed so far readable (see :mod:`formic_record.bag`).
 """
 
 from __future__ import annotations
 
 import importlib
+import json
 import os
 import signal
 import time
@@ -34,6 +37,7 @@ from . import qos as topics
 DISCOVERY_PERIOD_S = 0.2
 STREAM_DEPTH = 100  # the depth recorded for (and replayed with) stream topics
 SCENARIO_TYPE = topics.TOPICS[topics.SCENARIO].msgtype
+RECORDER_NODE = "recorder"  # the node name recorders_matched looks for
 
 
 def message_class(msgtype: str):
@@ -43,8 +47,9 @@ def message_class(msgtype: str):
 
 
 def subscription_qos(latched: bool) -> QoSProfile:
-    if latched:
-        return topics.LATCHED
+    if latched:  # keep-all too: a depth-1 reader drops a map that a newer one follows quickly
+        return QoSProfile(history=HistoryPolicy.KEEP_ALL, depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
     # Keep all: a reader history that drops its oldest samples loses messages whenever this
     # process falls behind (measured: applied actions lost at 1,000 steps/s); keep-all holds
     # them until the callbacks catch up (the world's logs keep LOG_DEPTH for the same reason).
@@ -112,7 +117,7 @@ class Recorder(Node):
     """Node ``recorder`` in the namespace; writes to a :class:`BagWriter`."""
 
     def __init__(self, writer: BagWriter, options: RecorderOptions):
-        super().__init__("recorder", namespace=options.namespace)
+        super().__init__(RECORDER_NODE, namespace=options.namespace)
         self.writer = writer
         self.options = options
         self.counts: Counter = Counter()
@@ -129,6 +134,19 @@ class Recorder(Node):
                 self._subscribe(name, spec.msgtype, subscription_qos(spec.latched))
         self._discover()
         self.create_timer(DISCOVERY_PERIOD_S, self._discover)
+
+    def _subscribe_agents(self, scenario_json: str) -> None:
+        """Every per-agent topic of the scenario's team, at once (not when it shows up in the
+        graph: the world publishes an agent's observations only once a subscriber matched)."""
+        try:
+            n_agents = int(json.loads(scenario_json)["config"]["n_agents"])
+        except (ValueError, KeyError, TypeError):
+            return
+        for agent in range(n_agents):
+            for leaf in (topics.AGENT_OBSERVATION, topics.AGENT_ACTION):
+                name = topics.full_name(self.options.namespace, topics.agent_topic(agent, leaf))
+                if name not in self._recorded and name not in self.skipped and self._wanted(name):
+                    self._subscribe(name, topics.TOPICS[leaf].msgtype, subscription_qos(False))
 
     def _wanted(self, name: str) -> bool:
         if self.options.topics:
@@ -170,6 +188,7 @@ class Recorder(Node):
 
     def _describe_run(self, data: bytes) -> None:
         msg = self._store.deserialize_cdr(data, SCENARIO_TYPE)
+        self._subscribe_agents(msg.scenario_json)
         self.writer.set_run_info({
             "seed": str(msg.seed),
             "scenario": msg.scenario_json,
@@ -179,19 +198,36 @@ class Recorder(Node):
         })
 
 
+STOP_SIGNALS = tuple(getattr(signal, n) for n in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, n))
+
+
+def _catch(handler) -> dict:
+    return {s: signal.signal(s, handler) for s in STOP_SIGNALS}
+
+
+def _restore(handlers: dict) -> None:
+    for sig, handler in handlers.items():
+        signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
+
+
 def record(out: str | Path, options: RecorderOptions, domain_id: int | None = None,
            duration_s: float | None = None, on_ready=None) -> dict:
-    """Record until SIGINT/SIGTERM (or ``duration_s``); returns counts per topic. The bag is
-    closed (summary and metadata.yaml written) on every exit but a SIGKILL."""
+    """Record until SIGINT/SIGTERM/SIGHUP (or ``duration_s``); returns counts per topic. The
+    bag is closed (summary and metadata.yaml written) on every exit but a SIGKILL: from the
+    first signal to the end of the close, further signals are only noted (a second Ctrl-C or
+    the terminal's SIGHUP cannot cut the close short)."""
     from .env import check_domain_id, ros_session
 
     check_domain_id(domain_id)  # before anything is written
     stop = []
-    writer = BagWriter(out, chunk_bytes=options.chunk_bytes, flush_seconds=options.flush_seconds)
+    counts: dict = {}
+    skipped: dict = {}
+    previous = _catch(lambda *_: stop.append(True))
     try:
-        with ros_session(domain_id) as executor:
-            handlers = {s: signal.signal(s, lambda *_: stop.append(True)) for s in (signal.SIGINT, signal.SIGTERM)}
-            try:
+        writer = BagWriter(out, chunk_bytes=options.chunk_bytes, flush_seconds=options.flush_seconds)
+        try:
+            with ros_session(domain_id) as executor:
+                _catch(lambda *_: stop.append(True))  # ros_session installs its own SIGTERM handler
                 node = Recorder(writer, options)
                 executor.add_node(node)
                 if on_ready is not None:
@@ -201,13 +237,30 @@ def record(out: str | Path, options: RecorderOptions, domain_id: int | None = No
                     executor.spin_once(timeout_sec=0.1)
                     writer.flush_if_due()
                 counts, skipped = dict(node.counts), dict(node.skipped)
-            finally:
-                for sig, handler in handlers.items():
-                    signal.signal(sig, handler)
+        finally:
+            writer.close()
     finally:
-        writer.close()
+        _restore(previous)
     return {"recording": str(out), "file": str(writer.mcap_path), "messages": sum(counts.values()),
             "topics": counts, "skipped": skipped}
+
+
+def recorders_present(node: Node) -> int:
+    """Recorder nodes in ``node``'s namespace (a world waits for those present at start)."""
+    namespace = node.get_namespace()
+    return sum(name == RECORDER_NODE and ns == namespace for name, ns in node.get_node_names_and_namespaces())
+
+
+def recorders_matched(node: Node, publishers, expected: int = 1) -> bool:
+    """True when at least ``expected`` recorders subscribe to the topic of every publisher in
+    ``publishers`` (rclpy publishers) and every subscription the graph shows there has matched
+    the publisher (so nothing published from now on is lost to discovery)."""
+    for publisher in publishers:
+        infos = node.get_subscriptions_info_by_topic(publisher.topic_name)
+        recorders = sum(i.node_name == RECORDER_NODE for i in infos)
+        if recorders < expected or publisher.get_subscription_count() < len(infos):
+            return False
+    return True
 
 
 def republish(path: str | os.PathLike, rate: float = 1.0, domain_id: int | None = None,

@@ -1,0 +1,204 @@
+"""What the re-simulated world would have published, compared field by field with every
+recorded message the world publishes (no rclpy: the recorded CDR is decoded with the
+recording's own schemas, the expected values come from :class:`formic_world.World`).
+
+Each check returns None or the first differing field (``field: recorded ..., expected ...``).
+Bitwise wherever the world publishes bits (observations, pheromone, loads, rewards).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from formic_world import World
+from formic_world.geometry import CACHE, RESOURCE
+
+N_ACTIONS = 5
+ENCODING_FLOAT32, ENCODING_COMPACT = 0, 1
+_ONE = np.float32(1.0).view(np.uint32)
+
+AGENT_OBSERVATION = "formic_interfaces/msg/AgentObservation"
+OBSERVATION_BATCH = "formic_interfaces/msg/ObservationBatch"
+WORLD_STATE = "formic_interfaces/msg/WorldState"
+CLOCK = "rosgraph_msgs/msg/Clock"
+FLOAT64 = "std_msgs/msg/Float64"
+OCCUPANCY_GRID = "nav_msgs/msg/OccupancyGrid"
+MARKER_ARRAY = "visualization_msgs/msg/MarkerArray"
+
+
+def stamp_ns(stamp) -> int:
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def sim_time_ns(step: int, dt: float) -> int:
+    """As :func:`formic_ros.viewer_msgs.sim_time` stamps step ``step``."""
+    return int(round(step * dt * 1e9))
+
+
+def _bits(values, dtype) -> bytes:
+    return np.ascontiguousarray(np.asarray(values), dtype=dtype).tobytes()
+
+
+def _field(name: str, recorded, expected, dtype) -> str | None:
+    """Compare an array (or scalar) field as the bytes of ``dtype``."""
+    got, want = _bits(recorded, dtype), _bits(expected, dtype)
+    if got == want:
+        return None
+    r, e = np.frombuffer(got, dtype=dtype), np.frombuffer(want, dtype=dtype)
+    if r.shape != e.shape:
+        return f"{name}: recorded {r.size} values, expected {e.size}"
+    unsigned = np.dtype(f"u{r.itemsize}")
+    where = int(np.flatnonzero(r.view(unsigned) != e.view(unsigned))[0])
+    return f"{name}[{where}]: recorded {r[where]!r}, expected {e[where]!r}"
+
+
+def _scalars(pairs) -> str | None:
+    for name, recorded, expected, dtype in pairs:
+        problem = _field(name, [recorded], [expected], dtype)
+        if problem:
+            return problem.replace("[0]", "")
+    return None
+
+
+def decode_compact(nonzero_bits, one_bits, other_values, shape: tuple[int, ...]) -> np.ndarray:
+    """:func:`formic_ros.wire.decode_compact` without ROS (ValueError on malformed fields)."""
+    rows, size = shape[0], math.prod(shape[1:])
+    row_bytes = (size + 7) // 8
+    nonzero_bits, one_bits = np.asarray(nonzero_bits, np.uint8), np.asarray(one_bits, np.uint8)
+    others = np.ascontiguousarray(other_values, dtype=np.float32).view(np.uint32)
+    if len(nonzero_bits) != rows * row_bytes:
+        raise ValueError("nonzero_bits: wrong length")
+    nonzero = np.unpackbits(nonzero_bits.reshape(rows, row_bytes), axis=1, count=size).view(bool)
+    kept = np.full(np.count_nonzero(nonzero), _ONE, dtype=np.uint32)
+    if len(one_bits) != (len(kept) + 7) // 8:
+        raise ValueError("one_bits: wrong length")
+    is_other = ~np.unpackbits(one_bits, count=len(kept)).view(bool)
+    if np.count_nonzero(is_other) != len(others):
+        raise ValueError("other_values: wrong length")
+    kept[is_other] = others
+    words = np.zeros((rows, size), dtype=np.uint32)
+    words[nonzero] = kept
+    return words.view(np.float32).reshape(shape)
+
+
+def check_agent_observation(msg, world: World) -> str | None:
+    result, a = world.last_result, int(msg.agent_id)
+    if not 0 <= a < len(world.pos):
+        return f"agent_id: recorded {a}, the world has {len(world.pos)} agents"
+    height, width = world.grid.shape
+    obs = result.observations[a]
+    return _scalars([
+        ("step", msg.step, world.t, np.uint32), ("channels", msg.channels, obs.shape[0], np.uint16),
+        ("size", msg.size, obs.shape[1], np.uint16),
+        ("load", msg.load, world.loads[a], np.float32), ("reward", msg.reward, result.rewards[a], np.float32),
+        ("queued", msg.queued, world.queued[a], np.bool_), ("done", msg.done, result.done, np.bool_),
+        ("row", msg.row, world.pos[a, 0], np.int32), ("col", msg.col, world.pos[a, 1], np.int32),
+        ("world_height", msg.world_height, height, np.uint16), ("world_width", msg.world_width, width, np.uint16),
+    ]) or _field("data", msg.data, obs.ravel(), np.float32) or \
+        _field("action_mask", msg.action_mask, result.action_mask[a], np.uint8)
+
+
+def check_observation_batch(msg, world: World) -> str | None:
+    result = world.last_result
+    ids = np.asarray(msg.agent_ids, dtype=np.int64)
+    if len(ids) and (ids.min() < 0 or ids.max() >= len(world.pos)):
+        return f"agent_ids: {ids.tolist()} outside the world's {len(world.pos)} agents"
+    height, width = world.grid.shape
+    obs = result.observations[ids]
+    problem = _scalars([
+        ("step", msg.step, world.t, np.uint32), ("channels", msg.channels, obs.shape[1], np.uint16),
+        ("size", msg.size, obs.shape[2], np.uint16), ("done", msg.done, result.done, np.bool_),
+        ("world_height", msg.world_height, height, np.uint16), ("world_width", msg.world_width, width, np.uint16),
+    ])
+    if problem:
+        return problem
+    shape = (len(ids), int(msg.channels), int(msg.size), int(msg.size))
+    try:
+        if msg.encoding == ENCODING_FLOAT32:
+            got = np.ascontiguousarray(msg.data, dtype=np.float32).reshape(shape)
+        elif msg.encoding == ENCODING_COMPACT:
+            got = decode_compact(msg.nonzero_bits, msg.one_bits, msg.other_values, shape)
+        else:
+            return f"encoding: unknown value {msg.encoding}"
+    except ValueError as exc:
+        return f"observations: {exc}"
+    fields = [("observations", got, obs, np.float32),
+              ("action_masks", msg.action_masks, result.action_mask[ids], np.uint8),
+              ("loads", msg.loads, world.loads[ids], np.float32),
+              ("rewards", msg.rewards, result.rewards[ids], np.float32),
+              ("queued", msg.queued, world.queued[ids], np.uint8),
+              ("rows", msg.rows, world.pos[ids, 0], np.int32), ("cols", msg.cols, world.pos[ids, 1], np.int32)]
+    if len(msg.train_masks):
+        fields.append(("train_masks", msg.train_masks, world.training_action_mask(result.action_mask)[ids], np.uint8))
+    for name, recorded, expected, dtype in fields:
+        problem = _field(name, recorded, expected, dtype)
+        if problem:
+            return problem
+    return None
+
+
+def check_state(msg, world: World) -> str | None:
+    height, width = world.grid.shape
+    digest = world.state_digest()
+    if msg.state_digest != digest:
+        return f"state_digest: recorded {msg.state_digest}, re-simulated {digest}"
+    problem = _scalars([("step", msg.step, world.t, np.uint32), ("height", msg.height, height, np.uint16),
+                        ("width", msg.width, width, np.uint16), ("score", msg.score, world.score, np.float64)])
+    if problem:
+        return problem.replace("expected", "re-simulated")
+    remaining = np.where(world.resource_remaining < 0, -1.0, world.resource_remaining / world.load_full)
+    for name, recorded, expected, dtype in (
+        ("grid", msg.grid, world.grid, np.uint8), ("pheromone", msg.pheromone, world.visible_pheromone(), np.float32),
+        ("agent_rows", msg.agent_rows, world.pos[:, 0], np.int32),
+        ("agent_cols", msg.agent_cols, world.pos[:, 1], np.int32),
+        ("agent_loads", msg.agent_loads, world.loads, np.float32),
+        ("agent_queues", msg.agent_queues, world.queue_of, np.int32),
+        ("resource_rows", msg.resource_rows, world.resource_pos[:, 0], np.int32),
+        ("resource_cols", msg.resource_cols, world.resource_pos[:, 1], np.int32),
+        ("resource_directions", msg.resource_directions, world.resource_dir, np.uint8),
+        ("resource_remaining", msg.resource_remaining, remaining, np.float32),
+    ):
+        if len(recorded) == 0 and name.startswith("resource"):
+            continue  # not filled by every publisher (older recordings)
+        problem = _field(name, recorded, expected, dtype)
+        if problem:
+            return problem.replace("expected", "re-simulated")
+    return None
+
+
+def check_clock(msg, step: int, dt: float) -> str | None:
+    got, want = stamp_ns(msg.clock), sim_time_ns(step, dt)
+    return None if got == want else f"clock: recorded {got} ns, expected {want} ns (step {step}, dt {dt})"
+
+
+def occupancy_values(world: World) -> np.ndarray:
+    """:func:`formic_ros.viewer_msgs.occupancy_grid`'s data, as int8 rows bottom-up."""
+    values = np.rint(np.clip(world.visible_pheromone(), 0.0, 1.0) * 60).astype(np.int8)
+    values[world.grid == 1] = 100
+    values[world.grid == RESOURCE] = 80
+    values[world.grid == CACHE] = 90
+    return values[::-1]
+
+
+def check_map(msg, world: World) -> str | None:
+    height, width = world.grid.shape
+    return _scalars([("info.width", msg.info.width, width, np.uint32),
+                     ("info.height", msg.info.height, height, np.uint32)]) or \
+        _field("data", msg.data, occupancy_values(world), np.int8)
+
+
+def check_markers(msg, world: World) -> str | None:
+    height = world.grid.shape[0]
+    expected = {"agents": world.pos, "resources": world.resource_pos}
+    for marker in msg.markers:
+        cells = expected.get(marker.ns)
+        if cells is None:
+            continue
+        got = np.array([(p.x, p.y) for p in marker.points], dtype=np.float64).reshape(-1, 2)
+        want = np.stack([cells[:, 1] + 0.5, height - 1 - cells[:, 0] + 0.5], axis=1).astype(np.float64)
+        problem = _field(f"markers[{marker.ns}].points", got, want.reshape(-1, 2), np.float64)
+        if problem:
+            return problem
+    return None
