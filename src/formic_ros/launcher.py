@@ -320,7 +320,7 @@ def launch_training(opts: TrainRunOptions) -> dict:
     (``opts.config``) and scenario stream; resumes ``run_dir`` unless ``fresh``. Returns each
     episode's summary (the learning curve: ``EPISODE_FIELDS``) and the trainer's result;
     children are stopped and reaped in any case."""
-    from .world_node import require_one_world
+    from .training_world import require_one_world
 
     cfg = opts.config
     require_one_world(cfg)
