@@ -86,9 +86,9 @@ def driver_specs(opts: RunOptions, team: Team) -> dict[str, dict]:
     """The processes that answer the world: the planner node, or the agent hosts."""
     if "planner" in team.names:
         return {"planner": node_spec("planner", namespace=opts.namespace, once=True, domain_id=opts.domain_id)}
-    return {f"host{i}": node_spec("agents", agent_ids=[int(a) for a in ids], spec=opts.policy, once=True, domain_id=opts.domain_id,
-                                  model=opts.model, greedy=opts.greedy, transport=opts.transport,
-                                  namespace=opts.namespace, name=f"agent_host_{i}")
+    return {f"host{i}": node_spec("agents", agent_ids=[int(a) for a in ids], spec=opts.policy, once=True,
+                                  domain_id=opts.domain_id, model=opts.model, greedy=opts.greedy,
+                                  transport=opts.transport, namespace=opts.namespace, name=f"agent_host_{i}")
             for i, ids in enumerate(team.split(opts.hosts))}
 
 

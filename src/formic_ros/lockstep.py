@@ -157,6 +157,27 @@ class Lockstep:
         self.collect(executor, now + self.deadline_s, need_all=True, resend=resend, resend_s=STEP_RESEND_S)
         return tick
 
+    def summary(self, book, scenario, label: str, clock: dict) -> dict:
+        """``formic sim``'s summary (``book``: the episode's :class:`EpisodeStats`) plus what
+        the distributed run adds: misses, rejections, mode and speed (``clock``: monotonic and
+        CPU times of the start, the first step and the end)."""
+        steps = scenario.config.episode_steps - 1  # timed steps (after step 0)
+        stepping_s = clock["ended"] - clock["stepping_from"]
+        summary = book.summary(scenario, label)
+        summary.update(
+            food_curve=book.food_curve.tolist(),
+            missed_actions=int(self.missed.sum()),
+            missed_per_agent=self.missed.tolist(),
+            last_answered_step=self.last_answered.tolist(),
+            rejected_actions=dict(self.inbox.rejected),
+            mode="free-running" if self.rate_hz else "lockstep",
+            steps_per_s=steps / stepping_s if steps > 0 and stepping_s > 0 else 0.0,
+            startup_s=clock["stepping_from"] - clock["started"],
+            wall_s=clock["ended"] - clock["started"],
+            world_cpu_ms_per_step=(clock["cpu_to"] - clock["cpu_from"]) / max(1, steps) * 1e3,
+        )
+        return summary
+
     def count_misses(self, t: int) -> None:
         self.last_answered[self.inbox.received] = t
         missing = np.flatnonzero(~self.inbox.received)

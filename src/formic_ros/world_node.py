@@ -26,14 +26,8 @@ from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
-from formic_interfaces.msg import (
-    ActionBatch,
-    AgentAction,
-    AgentObservation,
-    ObservationBatch,
-    ScenarioDescription,
-    WorldState,
-)
+from formic_interfaces.msg import (ActionBatch, AgentAction, AgentObservation, ObservationBatch,
+                                   ScenarioDescription, WorldState)
 from rclpy.duration import Duration
 from rclpy.node import Node
 from std_msgs.msg import Float64, String
@@ -45,6 +39,7 @@ from formic_world import Scenario, StepResult, World
 from . import convert, qos, viewer_msgs
 from .lockstep import Lockstep, RateLimitedLog
 from .wire import encoding_code, read
+
 LISTENER_REFRESH_S = 0.25  # how often the set of per-agent observation subscribers is re-read
 LINGER_S = 0.5  # the node stays up this long after the episode's last messages
 ACK_TIMEOUT_S = 3.5  # at the end, how long subscribers get to acknowledge the last messages
@@ -239,7 +234,7 @@ class WorldNode(Node):
         clock.update(ended=time.monotonic(), cpu_to=time.process_time(), started=started)
         if last:
             self._linger(executor)
-        summary = self._summary(book, clock)
+        summary = self.lockstep.summary(book, self.scenario, self.options.policy_label or "unknown", clock)
         self.summary_pub.publish(String(data=json.dumps(summary, default=float)))
         for publisher in (self.applied_pub, self.state_pub, self.summary_pub) if last else ():
             if publisher.get_subscription_count():
@@ -264,25 +259,6 @@ class WorldNode(Node):
         self._publish_state(final=final)
         if self.view is not None:
             self.view.publish(self.world, final=final)
-
-    def _summary(self, book: EpisodeStats, clock: dict) -> dict:
-        """``formic sim``'s summary plus what the distributed run adds."""
-        steps = self.scenario.config.episode_steps - 1  # timed steps (after step 0)
-        stepping_s = clock["ended"] - clock["stepping_from"]
-        summary = book.summary(self.scenario, self.options.policy_label or "unknown")
-        summary.update(
-            food_curve=book.food_curve.tolist(),
-            missed_actions=int(self.lockstep.missed.sum()),
-            missed_per_agent=self.lockstep.missed.tolist(),
-            last_answered_step=self.lockstep.last_answered.tolist(),
-            rejected_actions=dict(self.inbox.rejected),
-            mode="free-running" if self.options.rate_hz else "lockstep",
-            steps_per_s=steps / stepping_s if steps > 0 and stepping_s > 0 else 0.0,
-            startup_s=clock["stepping_from"] - clock["started"],
-            wall_s=clock["ended"] - clock["started"],
-            world_cpu_ms_per_step=(clock["cpu_to"] - clock["cpu_from"]) / max(1, steps) * 1e3,
-        )
-        return summary
 
 
 def serve_world(
