@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import json
 import math
-import subprocess
 import tempfile
 import time
 from collections.abc import Callable
@@ -31,7 +30,7 @@ from formic_world import Scenario
 from . import qos
 from .env import check_domain_id, ros_environment
 from .node_process import node_spec
-from .processes import RECORDER_GRACE_S, STOP_GRACE_S, Child, JsonLines, Outputs, spawn
+from .processes import RECORDER_GRACE_S, STOP_GRACE_S, Child, JsonLines, Outputs, spawn, watch
 from .world_node import WorldNodeOptions
 
 if TYPE_CHECKING:
@@ -92,21 +91,6 @@ def driver_specs(opts: RunOptions, team: Team) -> dict[str, dict]:
             for i, ids in enumerate(team.split(opts.hosts))}
 
 
-def _wait_for_world(world: Child, recorder: Child | None, drivers: list[Child], timeout_s: float | None) -> None:
-    """Until the world exits. The recorder leaving, or a host or the planner failing, before
-    that is an error (the episode would run on without them; a failure is a bug to report)."""
-    deadline = None if timeout_s is None else time.monotonic() + timeout_s
-    while world.alive:
-        if recorder is not None and not recorder.alive:
-            raise RuntimeError(f"the recorder exited early with status {recorder.process.returncode}")
-        for child in drivers:
-            if child.failed:
-                raise RuntimeError(f"{child.name} failed with status {child.process.returncode} (see its log)")
-        if deadline is not None and time.monotonic() > deadline:
-            raise RuntimeError(f"the world did not finish within {timeout_s} s")
-        world.wait(0.2)
-
-
 def launch(opts: RunOptions) -> dict:
     """Play one episode across processes; returns the world's summary (plus launch details).
     Raises RuntimeError when the world fails; children are stopped and reaped in any case."""
@@ -127,8 +111,7 @@ def launch(opts: RunOptions) -> dict:
         scenario.save(scenario_file)
 
         def start(name: str, spec: dict, stdout=None) -> Child:
-            log = outputs.log(name)
-            children.append(spawn(name, spec, Path(tmp), env, stdout or log, log if stdout else subprocess.STDOUT))
+            children.append(spawn(name, spec, Path(tmp), env, *outputs.streams(name, stdout)))
             return children[-1]
 
         try:
@@ -136,9 +119,8 @@ def launch(opts: RunOptions) -> dict:
             world = start("world", world_spec(opts, scenario_file, label), world_out)
             recorder = start("recorder", recorder_spec(opts, team)) if opts.record else None
             drivers = [start(name, spec) for name, spec in driver_specs(opts, team).items()]
-            _wait_for_world(world, recorder, drivers, opts.timeout_s)
-            if world.process.returncode != 0:
-                raise RuntimeError(f"the world exited with status {world.process.returncode}")
+            # the recorder leaving, or a host or the planner failing, before the world ends is an error
+            watch(world, drivers, opts.timeout_s, "the world", required=recorder)
             summary = JsonLines(world_out).new()[-1]
             leave_by = time.monotonic() + HOST_EXIT_S  # --once drivers leave when they see the end
             for child in drivers:
@@ -234,21 +216,9 @@ def launch_training(opts: TrainRunOptions) -> dict:
 
         try:
             for name, spec in training_specs(opts, config_file, start).items():
-                log = outputs.log(name)
-                stdout, stderr = (outs[name], log) if name in outs else (log, subprocess.STDOUT)
-                children.append(spawn(name, spec, Path(tmp), env, stdout, stderr))
+                children.append(spawn(name, spec, Path(tmp), env, *outputs.streams(name, outs.get(name))))
             trainer, world, host = children
-            deadline = None if opts.timeout_s is None else time.monotonic() + opts.timeout_s
-            while world.alive:
-                for child in (trainer, host):
-                    if child.failed:
-                        raise RuntimeError(f"{child.name} failed with status {child.process.returncode} (see its log)")
-                if deadline is not None and time.monotonic() > deadline:
-                    raise RuntimeError(f"training did not finish within {opts.timeout_s} s")
-                collect_episodes()
-                world.wait(0.5)
-            if world.process.returncode != 0:
-                raise RuntimeError(f"the world exited with status {world.process.returncode}")
+            watch(world, [trainer, host], opts.timeout_s, "training", poll_s=0.5, tick=collect_episodes)
             collect_episodes()
             trainer.wait(opts.deadline_ms / 1e3)  # the trainer leaves by itself after the last rollout's update
             if trainer.alive:

@@ -14,17 +14,7 @@ import json
 import sys
 from pathlib import Path
 
-
-def emit(obj: dict) -> None:
-    """One JSON object on stdout (as ``--json`` prints it: NumPy numbers as floats, the rest as text)."""
-    print(json.dumps(obj, default=_plain), flush=True)
-
-
-def _plain(value) -> float | str:
-    try:
-        return float(value)
-    except (TypeError, ValueError):
-        return str(value)
+from formic_cli.summary import emit_json as emit  # what `formic world --json` prints
 
 
 def log(text: str) -> None:

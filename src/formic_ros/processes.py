@@ -12,6 +12,7 @@ import os
 import signal
 import subprocess
 import sys
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -70,6 +71,26 @@ class Child:
         return self.process.wait()
 
 
+def watch(main: Child, others: list[Child], timeout_s: float | None, what: str, poll_s: float = 0.2,
+          required: Child | None = None, tick=None) -> None:
+    """Until ``main`` exits (with status 0, else RuntimeError), calling ``tick`` every ``poll_s``.
+    One of ``others`` failing, ``required`` leaving, or ``timeout_s`` passing first is an error."""
+    deadline = None if timeout_s is None else time.monotonic() + timeout_s
+    while main.alive:
+        if required is not None and not required.alive:
+            raise RuntimeError(f"the {required.name} exited early with status {required.process.returncode}")
+        for child in others:
+            if child.failed:
+                raise RuntimeError(f"{child.name} failed with status {child.process.returncode} (see its log)")
+        if deadline is not None and time.monotonic() > deadline:
+            raise RuntimeError(f"{what} did not finish within {timeout_s} s")
+        if tick is not None:
+            tick()
+        main.wait(poll_s)
+    if main.process.returncode != 0:
+        raise RuntimeError(f"the {main.name} exited with status {main.process.returncode}")
+
+
 def spawn(name: str, spec: dict, spec_dir: Path, env: dict[str, str], stdout=None, stderr=None) -> Child:
     """Start node process ``name`` (:mod:`formic_ros.node_process`) on ``spec``, written as
     ``spec_dir/NAME.options.json``; in its own session, killed if this process dies."""
@@ -96,6 +117,11 @@ class Outputs:
         Path(self.log_dir).mkdir(parents=True, exist_ok=True)
         self.files.append(open(Path(self.log_dir) / f"{name}.log", "w"))
         return self.files[-1]
+
+    def streams(self, name: str, stdout=None) -> tuple:
+        """A child's (stdout, stderr): its log for both, or ``stdout`` and its log."""
+        log = self.log(name)
+        return (stdout, log) if stdout is not None else (log, subprocess.STDOUT)
 
     def stdout(self, name: str):
         self.files.append(open(self.tmp / f"{name}.json", "w+b"))
