@@ -178,7 +178,7 @@ def training_specs(opts: TrainRunOptions, config_file: Path, start: int) -> dict
     return {
         "trainer": node_spec("trainer", **common, run_dir=opts.run_dir, resume=not opts.fresh,
                              max_rollouts=opts.episodes * chunks, max_lag=max(DEFAULT_MAX_LAG, chunks)),
-        "world": node_spec("training_world", train_config=str(config_file), episodes=opts.episodes,
+        "world": node_spec("world", train_config=str(config_file), episodes=opts.episodes,
                            first_episode=start, options=asdict(world), domain_id=opts.domain_id),
         "host0": node_spec("learning_agents", **common, agent_ids=list(range(opts.config.teams[0])),
                            switch=opts.switch, episodes=opts.episodes, first_episode=start, name="agent_host_0"),

@@ -21,28 +21,23 @@ def log(text: str) -> None:
     print(text, file=sys.stderr, flush=True)
 
 
-def world(scenario: str, options: dict, domain_id: int | None) -> None:
-    from formic_world import Scenario
+def world(options: dict, domain_id: int | None, scenario: str | None = None, train_config: str | None = None,
+          episodes: int = 1, first_episode: int = 0) -> None:
+    """One episode on ``scenario`` (a file), or training mode: ``episodes`` on ``train_config``'s."""
+    from .world_node import WorldNodeOptions, serve_world
 
-    from .world_node import serve_world
+    options = WorldNodeOptions(**{**options, "require_subscribers": tuple(options.get("require_subscribers", ()))})
+    if train_config is None:
+        from formic_world import Scenario
 
-    serve_world(Scenario.load(scenario), world_options(options), domain_id=domain_id, on_summary=emit)
-
-
-def training_world(train_config: str, episodes: int, first_episode: int, options: dict,
-                   domain_id: int | None) -> None:
+        serve_world(Scenario.load(scenario), options, domain_id=domain_id, on_summary=emit)
+        return
     from formic_trainer.config import load_train_config
 
     from .training_world import serve_training_world
 
-    serve_training_world(load_train_config(train_config), episodes, world_options(options),
-                         first_episode=first_episode, domain_id=domain_id, on_episode=emit)
-
-
-def world_options(options: dict):
-    from .world_node import WorldNodeOptions
-
-    return WorldNodeOptions(**{**options, "require_subscribers": tuple(options.get("require_subscribers", ()))})
+    serve_training_world(load_train_config(train_config), episodes, options, first_episode=first_episode,
+                         domain_id=domain_id, on_episode=emit)
 
 
 def agents(**kwargs) -> None:
@@ -87,7 +82,7 @@ def trainer(train_config: str, run_dir: str, **kwargs) -> None:
     emit(serve_trainer(load_train_config(train_config), Path(run_dir), log=log, **kwargs))
 
 
-NODES = {f.__name__: f for f in (world, training_world, agents, learning_agents, planner, recorder, trainer)}
+NODES = {f.__name__: f for f in (world, agents, learning_agents, planner, recorder, trainer)}
 
 
 def node_spec(node: str, **kwargs) -> dict:
