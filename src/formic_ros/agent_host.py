@@ -39,7 +39,6 @@ from formic_runtime.threads import configure_threads
 from formic_world import Scenario
 
 from . import convert, qos
-from .wire import read
 
 TRANSPORTS = ("per-agent", "batched")
 
@@ -175,16 +174,13 @@ class AgentHost:
     def _on_batch(self, msg: ObservationBatch) -> None:
         if not self._ready(msg.step, msg.done) or msg.step < self.answered_step:
             return
-        ids = read(msg.agent_ids, np.uint32).astype(np.int64)
-        lookup = np.full(max(int(ids.max(initial=-1)), int(self.ids.max())) + 1, -1, dtype=np.int64)
-        lookup[ids] = np.arange(len(ids))
-        rows = lookup[self.ids]
+        rows = convert.rows_of(msg, self.ids)
         rows = rows[rows >= 0]
         if not len(rows):
             return  # none of ours (a re-send for other hosts' agents)
         if msg.step == self.answered_step:
             self.actions_pub.publish(convert.encode_actions(msg.step, self.answer_ids, self.answer))
-        elif len(rows) == len(ids) and (rows == np.arange(len(ids))).all():
+        elif len(rows) == len(msg.agent_ids) and (rows == np.arange(len(rows))).all():
             self._answer(convert.decode_observation_batch(msg))  # every row, in order: no copy
         else:
             self._answer(convert.decode_observation_batch(msg, rows))

@@ -78,6 +78,14 @@ def decode_observation_batch(msg: ObservationBatch, rows: np.ndarray | None = No
     )
 
 
+def rows_of(msg: ObservationBatch, agent_ids: np.ndarray) -> np.ndarray:
+    """The row of each of ``agent_ids`` in a received ObservationBatch (-1 where absent)."""
+    ids = read(msg.agent_ids, np.uint32).astype(np.int64)
+    lookup = np.full(max(int(ids.max(initial=-1)), int(agent_ids.max())) + 1, -1, dtype=np.int64)
+    lookup[ids] = np.arange(len(ids))
+    return lookup[agent_ids]
+
+
 def encode_agent_observations(batch: AgentBatch, rewards: np.ndarray, done: bool, rows=None) -> list[AgentObservation]:
     """One AgentObservation per row in ``rows`` (default: all) of a batch."""
     ids, observations, action_mask, positions, loads, queued = _rows(batch, rows)

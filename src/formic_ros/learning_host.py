@@ -176,10 +176,7 @@ class LearningHost:
     # ---------------------------------------------------------------------- stepping
     def _rows(self, msg: ObservationBatch) -> np.ndarray | None:
         """Rows of this host's agents in the message, in id order; None unless all are there."""
-        ids = read(msg.agent_ids, np.uint32).astype(np.int64)
-        lookup = np.full(max(int(ids.max(initial=-1)), int(self.ids.max())) + 1, -1, dtype=np.int64)
-        lookup[ids] = np.arange(len(ids))
-        rows = lookup[self.ids]
+        rows = convert.rows_of(msg, self.ids)
         return rows if (rows >= 0).all() else None
 
     def _take(self, msg: ObservationBatch) -> bool:

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import importlib
 import os
-import signal
 import time
 from collections import Counter
 from dataclasses import dataclass
@@ -183,27 +182,21 @@ def record(out: str | Path, options: RecorderOptions, domain_id: int | None = No
            duration_s: float | None = None, on_ready=None) -> dict:
     """Record until SIGINT/SIGTERM (or ``duration_s``); returns counts per topic. The bag is
     closed (summary and metadata.yaml written) on every exit but a SIGKILL."""
-    from .env import check_domain_id, ros_session
+    from .env import check_domain_id, ros_session, stop_requests
 
     check_domain_id(domain_id)  # before anything is written
-    stop = []
     writer = BagWriter(out, chunk_bytes=options.chunk_bytes, flush_seconds=options.flush_seconds)
     try:
-        with ros_session(domain_id) as executor:
-            handlers = {s: signal.signal(s, lambda *_: stop.append(True)) for s in (signal.SIGINT, signal.SIGTERM)}
-            try:
-                node = Recorder(writer, options)
-                executor.add_node(node)
-                if on_ready is not None:
-                    on_ready(node)
-                deadline = None if duration_s is None else time.monotonic() + duration_s
-                while not stop and (deadline is None or time.monotonic() < deadline):
-                    executor.spin_once(timeout_sec=0.1)
-                    writer.flush_if_due()
-                counts, skipped = dict(node.counts), dict(node.skipped)
-            finally:
-                for sig, handler in handlers.items():
-                    signal.signal(sig, handler)
+        with ros_session(domain_id) as executor, stop_requests() as stop:
+            node = Recorder(writer, options)
+            executor.add_node(node)
+            if on_ready is not None:
+                on_ready(node)
+            deadline = None if duration_s is None else time.monotonic() + duration_s
+            while not stop and (deadline is None or time.monotonic() < deadline):
+                executor.spin_once(timeout_sec=0.1)
+                writer.flush_if_due()
+            counts, skipped = dict(node.counts), dict(node.skipped)
     finally:
         writer.close()
     return {"recording": str(out), "file": str(writer.mcap_path), "messages": sum(counts.values()),

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import copy
 import hashlib
-import signal
 import time
 from collections import OrderedDict, deque
 from collections.abc import Callable
@@ -163,56 +162,50 @@ def serve_trainer(cfg: TrainConfig, run_dir: Path, resume: bool = True, namespac
     from rclpy.node import Node
 
     from .convert import WeightsPayload, decode_rollout, encode_weights
-    from .env import ros_session
+    from .env import ros_session, stop_requests
 
     learner = RemoteLearner(cfg, run_dir, resume=resume, max_lag=max_lag, log=log)
     pending: deque = deque()
-    stop: list[bool] = []
     updates_here = rollouts_here = 0
     started = time.monotonic()
     try:
-        with ros_session(domain_id) as executor:
-            handlers = {s: signal.signal(s, lambda *_: stop.append(True)) for s in (signal.SIGINT, signal.SIGTERM)}
-            try:
-                node = Node("trainer", namespace=namespace)
-                executor.add_node(node)
-                publisher = node.create_publisher(Weights, qos.WEIGHTS, qos.LATCHED)
-                node.create_subscription(Rollout, qos.ROLLOUTS, lambda msg: pending.append(msg), qos.ROLLOUT)
-                model_config = learner.learner.net.config.to_dict()
+        with ros_session(domain_id) as executor, stop_requests() as stop:
+            node = Node("trainer", namespace=namespace)
+            executor.add_node(node)
+            publisher = node.create_publisher(Weights, qos.WEIGHTS, qos.LATCHED)
+            node.create_subscription(Rollout, qos.ROLLOUTS, lambda msg: pending.append(msg), qos.ROLLOUT)
+            model_config = learner.learner.net.config.to_dict()
 
-                def broadcast() -> None:
-                    data, content_id = learner.weights_payload()
-                    publisher.publish(encode_weights(WeightsPayload(learner.version, data, content_id, model_config)))
+            def broadcast() -> None:
+                data, content_id = learner.weights_payload()
+                publisher.publish(encode_weights(WeightsPayload(learner.version, data, content_id, model_config)))
 
+            broadcast()
+            log(f"trainer: weights version {learner.version} published; waiting for rollouts")
+            while not (stop or (max_updates is not None and updates_here >= max_updates)
+                       or (max_rollouts is not None and rollouts_here >= max_rollouts)):
+                executor.spin_once(timeout_sec=0.0 if pending else 0.1)
+                if not pending:
+                    continue
+                msg = pending.popleft()
+                rollouts_here += 1
+                try:
+                    arrays = decode_rollout(msg)
+                except ValueError as exc:
+                    learner.dropped += 1
+                    log(f"dropped a malformed rollout from {msg.host or '?'}: {exc}")
+                    continue
+                stats = learner.learn(arrays, msg.weights_version, msg.host, msg.episode, msg.food)
+                if stats is None:
+                    continue
+                updates_here += 1
                 broadcast()
-                log(f"trainer: weights version {learner.version} published; waiting for rollouts")
-                while not (stop or (max_updates is not None and updates_here >= max_updates)
-                           or (max_rollouts is not None and rollouts_here >= max_rollouts)):
-                    executor.spin_once(timeout_sec=0.0 if pending else 0.1)
-                    if not pending:
-                        continue
-                    msg = pending.popleft()
-                    rollouts_here += 1
-                    try:
-                        arrays = decode_rollout(msg)
-                    except ValueError as exc:
-                        learner.dropped += 1
-                        log(f"dropped a malformed rollout from {msg.host or '?'}: {exc}")
-                        continue
-                    stats = learner.learn(arrays, msg.weights_version, msg.host, msg.episode, msg.food)
-                    if stats is None:
-                        continue
-                    updates_here += 1
-                    broadcast()
-                    log(f"update {learner.version}: {msg.n_steps}x{msg.n_agents} from {msg.host or '?'} "
-                        f"(episode {msg.episode}, lag {stats['lag']:.0f}, food {msg.food:.1f}) "
-                        f"loss {stats['loss']:.3f}"
-                        + (f"; episode food {stats['episode_food']:.1f}" if "episode_food" in stats else ""))
-                if not stop:  # the last weights reach the hosts before the node goes
-                    publisher.wait_for_all_acked(Duration(seconds=2.0))
-            finally:
-                for sig, handler in handlers.items():
-                    signal.signal(sig, handler)
+                log(f"update {learner.version}: {msg.n_steps}x{msg.n_agents} from {msg.host or '?'} "
+                    f"(episode {msg.episode}, lag {stats['lag']:.0f}, food {msg.food:.1f}) "
+                    f"loss {stats['loss']:.3f}"
+                    + (f"; episode food {stats['episode_food']:.1f}" if "episode_food" in stats else ""))
+            if not stop:  # the last weights reach the hosts before the node goes
+                publisher.wait_for_all_acked(Duration(seconds=2.0))
     finally:
         learner.close()
     return {"run_dir": str(run_dir), "version": learner.version, "updates": updates_here,
