@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import json
 import math
-import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
@@ -30,7 +29,7 @@ from formic_world import Scenario
 from . import qos
 from .env import check_domain_id, ros_environment
 from .node_process import node_spec
-from .processes import RECORDER_GRACE_S, STOP_GRACE_S, Child, JsonLines, Outputs, spawn, watch
+from .processes import RECORDER_GRACE_S, Children, JsonLines, watch
 from .world_node import WorldNodeOptions
 
 if TYPE_CHECKING:
@@ -101,36 +100,23 @@ def launch(opts: RunOptions) -> dict:
     if "planner" in team.names and opts.external:
         raise ValueError("the planner commands every agent; it cannot leave some to --external")
     check_domain_id(opts.domain_id)
-    env = ros_environment(opts.domain_id)
     label = opts.policy + (f",external:{ids_text(list(opts.external))}" if opts.external else "")
-    children: list[Child] = []
     started = time.monotonic()
-    with tempfile.TemporaryDirectory(prefix="formic-run-") as tmp:
-        outputs = Outputs(opts.log_dir, Path(tmp))
-        scenario_file = Path(tmp) / "scenario.json"
+    with Children("formic-run-", ros_environment(opts.domain_id), opts.log_dir) as run:
+        scenario_file = run.dir / "scenario.json"
         scenario.save(scenario_file)
-
-        def start(name: str, spec: dict, stdout=None) -> Child:
-            children.append(spawn(name, spec, Path(tmp), env, *outputs.streams(name, stdout)))
-            return children[-1]
-
-        try:
-            world_out = outputs.stdout("world")
-            world = start("world", world_spec(opts, scenario_file, label), world_out)
-            recorder = start("recorder", recorder_spec(opts, team)) if opts.record else None
-            drivers = [start(name, spec) for name, spec in driver_specs(opts, team).items()]
-            # the recorder leaving, or a host or the planner failing, before the world ends is an error
-            watch(world, drivers, opts.timeout_s, "the world", required=recorder)
-            summary = JsonLines(world_out).new()[-1]
-            leave_by = time.monotonic() + HOST_EXIT_S  # --once drivers leave when they see the end
-            for child in drivers:
-                child.wait(leave_by - time.monotonic())
-        finally:
-            codes = {child.name: child.stop(RECORDER_GRACE_S if child.name == "recorder" else STOP_GRACE_S)
-                     for child in reversed(children)}
-            outputs.close()
+        world_out = run.stdout("world")
+        world = run.start("world", world_spec(opts, scenario_file, label), world_out)
+        recorder = run.start("recorder", recorder_spec(opts, team), grace_s=RECORDER_GRACE_S) if opts.record else None
+        drivers = [run.start(name, spec) for name, spec in driver_specs(opts, team).items()]
+        # the recorder leaving, or a host or the planner failing, before the world ends is an error
+        watch(world, drivers, opts.timeout_s, "the world", required=recorder)
+        summary = JsonLines(world_out).new()[-1]
+        leave_by = time.monotonic() + HOST_EXIT_S  # --once drivers leave when they see the end
+        for child in drivers:
+            child.wait(leave_by - time.monotonic())
     summary.update(hosts=len(drivers), transport=opts.transport, external=list(opts.external),
-                   launch_wall_s=time.monotonic() - started, exit_codes=codes)
+                   launch_wall_s=time.monotonic() - started, exit_codes=run.codes)
     if opts.record:
         summary["recording"] = opts.record
     return summary
@@ -196,15 +182,12 @@ def launch_training(opts: TrainRunOptions) -> dict:
     cfg = opts.config
     require_one_world(cfg)
     check_domain_id(opts.domain_id)
-    env = ros_environment(opts.domain_id)
     start = first_episode(opts.run_dir, opts.fresh)
-    children: list[Child] = []
     started = time.monotonic()
-    with tempfile.TemporaryDirectory(prefix="formic-train-") as tmp:
-        outputs = Outputs(opts.log_dir, Path(tmp))
-        config_file = Path(tmp) / "train_config.json"
+    with Children("formic-train-", ros_environment(opts.domain_id), opts.log_dir) as run:
+        config_file = run.dir / "train_config.json"
         config_file.write_text(json.dumps(cfg.to_dict()))
-        outs = {name: outputs.stdout(name) for name in ("trainer", "world")}
+        outs = {name: run.stdout(name) for name in ("trainer", "world")}
         episodes: list[dict] = []
         world_lines = JsonLines(outs["world"])
 
@@ -214,21 +197,16 @@ def launch_training(opts: TrainRunOptions) -> dict:
                 if opts.on_episode is not None:
                     opts.on_episode(summary)
 
-        try:
-            for name, spec in training_specs(opts, config_file, start).items():
-                children.append(spawn(name, spec, Path(tmp), env, *outputs.streams(name, outs.get(name))))
-            trainer, world, host = children
-            watch(world, [trainer, host], opts.timeout_s, "training", poll_s=0.5, tick=collect_episodes)
-            collect_episodes()
-            trainer.wait(opts.deadline_ms / 1e3)  # the trainer leaves by itself after the last rollout's update
-            if trainer.alive:
-                raise RuntimeError(f"the trainer did not finish its last update within {opts.deadline_ms / 1e3:g} s")
-            if trainer.process.returncode != 0:
-                raise RuntimeError(f"the trainer exited with status {trainer.process.returncode}")
-            result = JsonLines(outs["trainer"]).new()[-1]
-            host.wait(HOST_EXIT_S)
-        finally:
-            codes = {child.name: child.stop() for child in reversed(children)}
-            outputs.close()
+        trainer, world, host = (run.start(name, spec, outs.get(name))
+                                for name, spec in training_specs(opts, config_file, start).items())
+        watch(world, [trainer, host], opts.timeout_s, "training", poll_s=0.5, tick=collect_episodes)
+        collect_episodes()
+        trainer.wait(opts.deadline_ms / 1e3)  # the trainer leaves by itself after the last rollout's update
+        if trainer.alive:
+            raise RuntimeError(f"the trainer did not finish its last update within {opts.deadline_ms / 1e3:g} s")
+        if trainer.process.returncode != 0:
+            raise RuntimeError(f"the trainer exited with status {trainer.process.returncode}")
+        result = JsonLines(outs["trainer"]).new()[-1]
+        host.wait(HOST_EXIT_S)
     return {"run_dir": opts.run_dir, "first_episode": start, "episodes": episodes, "trainer": result,
-            "launch_wall_s": time.monotonic() - started, "exit_codes": codes}
+            "launch_wall_s": time.monotonic() - started, "exit_codes": run.codes}

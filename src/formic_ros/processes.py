@@ -12,6 +12,7 @@ import os
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -35,6 +36,7 @@ class Child:
 
     name: str
     process: subprocess.Popen
+    grace_s: tuple[float, float] = STOP_GRACE_S  # after SIGINT, after SIGTERM
 
     @property
     def alive(self) -> bool:
@@ -58,10 +60,10 @@ class Child:
         except subprocess.TimeoutExpired:
             pass
 
-    def stop(self, grace_s: tuple[float, float] = STOP_GRACE_S) -> int:
+    def stop(self) -> int:
         """SIGINT, SIGTERM, SIGKILL (to the process group), waiting ``grace_s`` in between;
         reaps the child and returns its exit status."""
-        for signum, grace in ((signal.SIGINT, grace_s[0]), (signal.SIGTERM, grace_s[1])):
+        for signum, grace in ((signal.SIGINT, self.grace_s[0]), (signal.SIGTERM, self.grace_s[1])):
             if not self.alive:
                 break
             self.signal(signum)
@@ -91,7 +93,8 @@ def watch(main: Child, others: list[Child], timeout_s: float | None, what: str, 
         raise RuntimeError(f"the {main.name} exited with status {main.process.returncode}")
 
 
-def spawn(name: str, spec: dict, spec_dir: Path, env: dict[str, str], stdout=None, stderr=None) -> Child:
+def spawn(name: str, spec: dict, spec_dir: Path, env: dict[str, str], stdout=None, stderr=None,
+          grace_s: tuple[float, float] = STOP_GRACE_S) -> Child:
     """Start node process ``name`` (:mod:`formic_ros.node_process`) on ``spec``, written as
     ``spec_dir/NAME.options.json``; in its own session, killed if this process dies."""
     options = Path(spec_dir) / f"{name}.options.json"
@@ -101,35 +104,51 @@ def spawn(name: str, spec: dict, spec_dir: Path, env: dict[str, str], stdout=Non
         command, env=env, stdout=stdout, stderr=stderr, stdin=subprocess.DEVNULL,
         start_new_session=True, preexec_fn=_die_with_parent,
     )
-    return Child(name, process)
+    return Child(name, process, grace_s)
 
 
-class Outputs:
-    """Where the children write: stderr, or ``LOG_DIR/NAME.log`` each; and their stdout files
-    (JSON lines) in the run's temporary directory. :meth:`close` closes every file."""
+class Children:
+    """The child processes of one launch, as a context: on exit every child is stopped (in
+    reverse order, each with its grace periods) and reaped, its files closed and the launch's
+    temporary directory :attr:`dir` (option files, stdout files) removed; exit statuses in
+    :attr:`codes`. A child's log goes to stderr, or to ``LOG_DIR/NAME.log``."""
 
-    def __init__(self, log_dir: str | None, tmp: Path):
-        self.log_dir, self.tmp, self.files = log_dir, Path(tmp), []
+    def __init__(self, prefix: str, env: dict[str, str], log_dir: str | None):
+        self._tmp = tempfile.TemporaryDirectory(prefix=prefix)
+        self.dir, self.env, self.log_dir = Path(self._tmp.name), env, log_dir
+        self.children: list[Child] = []
+        self.files: list = []
+        self.codes: dict[str, int] = {}
 
-    def log(self, name: str):
+    def __enter__(self) -> Children:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        try:
+            self.codes = {child.name: child.stop() for child in reversed(self.children)}
+        finally:
+            for file in self.files:
+                file.close()
+            self._tmp.cleanup()
+
+    def start(self, name: str, spec: dict, stdout=None, grace_s: tuple[float, float] = STOP_GRACE_S) -> Child:
+        """Child ``name`` on ``spec``: its output (stdout too, unless given) to its log."""
+        log = self._log(name)
+        streams = (stdout, log) if stdout is not None else (log, subprocess.STDOUT)
+        self.children.append(spawn(name, spec, self.dir, self.env, *streams, grace_s=grace_s))
+        return self.children[-1]
+
+    def _log(self, name: str):
         if self.log_dir is None:
             return sys.stderr
         Path(self.log_dir).mkdir(parents=True, exist_ok=True)
         self.files.append(open(Path(self.log_dir) / f"{name}.log", "w"))
         return self.files[-1]
 
-    def streams(self, name: str, stdout=None) -> tuple:
-        """A child's (stdout, stderr): its log for both, or ``stdout`` and its log."""
-        log = self.log(name)
-        return (stdout, log) if stdout is not None else (log, subprocess.STDOUT)
-
     def stdout(self, name: str):
-        self.files.append(open(self.tmp / f"{name}.json", "w+b"))
+        """A file in :attr:`dir` for a child's stdout (read back with :class:`JsonLines`)."""
+        self.files.append(open(self.dir / f"{name}.json", "w+b"))
         return self.files[-1]
-
-    def close(self) -> None:
-        for file in self.files:
-            file.close()
 
 
 class JsonLines:
