@@ -42,7 +42,8 @@ def main() -> None:
             self.rng = random.Random(args.seed)
             self.done = False
             self.last: AgentAction | None = None
-            # Reliable, depth 10: the QoS of the world's per-agent topics.
+            # Reliable, depth 10: the QoS of the world's per-agent topics (formic_ros.qos.STREAM); the names
+            # are formic_ros.qos.AGENT_ACTION and AGENT_OBSERVATION (literal here: this example stands alone).
             self.publisher = self.create_publisher(AgentAction, "~/action", 10)
             self.create_subscription(AgentObservation, "~/observation", self.on_observation, 10)
 

@@ -213,18 +213,3 @@ def test_weights_round_trip():
     want = convert.WeightsPayload(4, b"\x00\x01weights", "abc123", {"channels": 8, "hidden": [64, 64]})
     msg, _ = through_cdr(convert.encode_weights(want))
     assert convert.decode_weights(msg) == want
-
-
-def test_rollout_encoding_matches_the_collectors_message():
-    """The codec writes the very bytes RolloutCollector.to_message writes (so one replaces the other)."""
-    from formic_ros.trainer_node import RolloutCollector
-
-    a = rollout_arrays()
-    collector = RolloutCollector(a["agent_ids"], host="h", episode=2, weights_version=3)
-    for t in range(3):
-        collector.add_step(a["obs"][t], a["train_mask"][t], a["loss_mask"][t] == 0, a["actions"][t],
-                           a["value_mask"][t], a["sample_mask"][t], a["extra"][t])
-        collector.add_rewards(a["rewards"][t])
-    want = collector.to_message(a["obs"][3], food=1.5, last_extra=a["extra"][3])
-    got = convert.encode_rollout(collector.arrays(a["obs"][3], a["extra"][3]), 3, "h", 2, 1.5)
-    assert rclpy_serialization.serialize_message(got) == rclpy_serialization.serialize_message(want)

@@ -26,8 +26,8 @@ from ros_helpers import (  # noqa: E402
 from formic_runtime.episode import run_episode  # noqa: E402
 from formic_agent.policy import AgentBatch  # noqa: E402
 from formic_runtime.team import Team, parse_ids  # noqa: E402
-from formic_ros import convert  # noqa: E402
-from formic_ros.world_node import ActionInbox, RateLimitedLog  # noqa: E402
+from formic_ros import convert, wire  # noqa: E402
+from formic_ros.lockstep import ActionInbox, RateLimitedLog  # noqa: E402
 from formic_world import NO_ACTION, World, WorldConfig, generate_scenario  # noqa: E402
 
 pytestmark = pytest.mark.filterwarnings("ignore:module 'sre_:DeprecationWarning")
@@ -226,7 +226,7 @@ def test_bad_actions_are_rejected_and_logged(spawner, monkeypatch):
         if t > 0:
             bad.append((t - 1, [3], [0]))
         for step, ids, acts in bad:
-            batch.publish(ActionBatch(step=step, agent_ids=convert.u32(np.array(ids)), actions=bytes(acts)))
+            batch.publish(ActionBatch(step=step, agent_ids=wire.u32(np.array(ids)), actions=bytes(acts)))
         other.publish(AgentAction(step=t, agent_id=3, action=1))  # on agent 1's topic
         own.publish(AgentAction(step=t, agent_id=3, action=200))
         pending.append((t, time.monotonic()))

@@ -26,7 +26,9 @@ torch = pytest.importorskip("torch")
 
 from formic_agent.checkpoint import CheckpointError, read_checkpoint  # noqa: E402
 from formic_agent.learned import LearnedPolicy  # noqa: E402
-from formic_ros.trainer_node import apply_weights, rollout_arrays, rollout_message  # noqa: E402
+from formic_ros.convert import decode_rollout as rollout_arrays  # noqa: E402
+from formic_ros.learning_host import rollout_message  # noqa: E402
+from formic_ros.trainer_node import apply_weights  # noqa: E402
 from formic_ros.trainer_node import RemoteLearner  # noqa: E402
 from formic_trainer.actor import Actor  # noqa: E402
 from formic_trainer.config import make_config  # noqa: E402
@@ -62,7 +64,8 @@ def collect(net, episode: int) -> dict[str, np.ndarray]:
 
 
 def message(rollout: dict[str, np.ndarray], episode: int):
-    return rollout_message(rollout, host="test-host", episode=episode, weights_version=0, food=0.0)
+    """What a learning host sends (:func:`formic_ros.learning_host.rollout_message`)."""
+    return rollout_message(rollout, weights_version=0, host="test-host", episode=episode, food=0.0)
 
 
 def snapshot(net) -> dict[str, torch.Tensor]:

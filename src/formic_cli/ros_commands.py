@@ -132,7 +132,8 @@ def world(scenario_file, policy_label, namespace, domain_id, deadline_ms, startu
           dt, training_masks, observation_encoding, require, stay, train_config, episodes, first_episode, progress,
           live_view, view_port, as_json, **world_kw) -> None:
     """The world node: owns the simulation and steps it with the agents over ROS."""
-    from formic_ros.world_node import WorldNodeOptions, serve_training_world, serve_world
+    from formic_ros.training_world import require_one_world, serve_training_world
+    from formic_ros.world_node import WorldNodeOptions, serve_world
 
     options = WorldNodeOptions(
         namespace=namespace, deadline_s=deadline_ms / 1e3, startup_timeout_s=startup_timeout, rate_hz=rate,
@@ -142,7 +143,6 @@ def world(scenario_file, policy_label, namespace, domain_id, deadline_ms, startu
     )
     if train_config:
         from formic_trainer.config import load_train_config
-        from formic_ros.world_node import require_one_world
 
         try:
             cfg = load_train_config(train_config)

@@ -46,7 +46,7 @@ TRANSPORTS = ("per-agent", "batched")
 def read_scenario(msg: ScenarioDescription, log) -> Scenario | None:
     """The scenario a description carries, or None (logged) when it cannot be read."""
     try:
-        return convert.scenario_from_description(msg)
+        return convert.decode_scenario(msg)
     except ValueError as exc:
         log.error(f"ignoring scenario: {exc}")
         return None
@@ -169,24 +169,21 @@ class AgentHost:
             self.collecting, self.gathered = msg.step, {}
         self.gathered[agent] = msg
         if len(self.gathered) == self.expected:
-            self._answer(convert.batch_from_agent_observations([self.gathered[a] for a in sorted(self.gathered)]))
+            self._answer(convert.decode_agent_observations([self.gathered[a] for a in sorted(self.gathered)]))
 
     def _on_batch(self, msg: ObservationBatch) -> None:
         if not self._ready(msg.step, msg.done) or msg.step < self.answered_step:
             return
-        ids = convert.read(msg.agent_ids, np.uint32).astype(np.int64)
-        lookup = np.full(max(int(ids.max(initial=-1)), int(self.ids.max())) + 1, -1, dtype=np.int64)
-        lookup[ids] = np.arange(len(ids))
-        rows = lookup[self.ids]
+        rows = convert.rows_of(msg, self.ids)
         rows = rows[rows >= 0]
         if not len(rows):
             return  # none of ours (a re-send for other hosts' agents)
         if msg.step == self.answered_step:
-            self.actions_pub.publish(convert.action_batch(msg.step, self.answer_ids, self.answer))
-        elif len(rows) == len(ids) and (rows == np.arange(len(ids))).all():
-            self._answer(convert.batch_from_observation_batch(msg))  # every row, in order: no copy
+            self.actions_pub.publish(convert.encode_actions(msg.step, self.answer_ids, self.answer))
+        elif len(rows) == len(msg.agent_ids) and (rows == np.arange(len(rows))).all():
+            self._answer(convert.decode_observation_batch(msg))  # every row, in order: no copy
         else:
-            self._answer(convert.batch_from_observation_batch(msg, rows))
+            self._answer(convert.decode_observation_batch(msg, rows))
 
     # ------------------------------------------------------------------------ actions
     def _answer(self, batch: AgentBatch) -> None:
@@ -198,7 +195,7 @@ class AgentHost:
         self.answered_step, self.answer_ids, self.answer = step, batch.agent_ids, actions
         self.collecting, self.gathered = -1, {}
         if self.transport == "batched":
-            self.actions_pub.publish(convert.action_batch(step, batch.agent_ids, actions))
+            self.actions_pub.publish(convert.encode_actions(step, batch.agent_ids, actions))
         else:
             for a, action in zip(batch.agent_ids.tolist(), actions.tolist()):
                 self.action_pubs[a].publish(AgentAction(step=step, agent_id=a, action=action))

@@ -2,7 +2,7 @@
 
 Observations are :class:`formic_agent.policy.AgentBatch` rows (batched or one message per
 agent), actions int64 arrays (NO_ACTION -1 travels as 255), rollouts the arrays
-:class:`formic_ros.trainer_node.RolloutCollector` builds, weights a :class:`WeightsPayload`.
+:meth:`formic_trainer.actor.Actor.rollout` returns, weights a :class:`WeightsPayload`.
 Array fields and the compact observation encoding are in :mod:`formic_ros.wire`; viewer
 messages (one way) in :mod:`formic_ros.viewer_msgs`.
 """
@@ -29,7 +29,7 @@ from formic_world import Scenario, World
 from formic_world.geometry import N_ACTIONS
 
 from .qos import NO_ACTION_WIRE
-from .wire import ENCODINGS, decode_observations, encoding_code, f32, i32, observation_fields, read, u8, u32  # noqa: F401
+from .wire import decode_observations, f32, i32, observation_fields, read, u8, u32
 
 SCENARIO_FORMAT_VERSION = 1
 ACTION_COUNT = N_ACTIONS  # the learning host reads it
@@ -76,6 +76,14 @@ def decode_observation_batch(msg: ObservationBatch, rows: np.ndarray | None = No
         queued=read(msg.queued, np.uint8)[rows].astype(bool),
         world_shape=(msg.world_height, msg.world_width),
     )
+
+
+def rows_of(msg: ObservationBatch, agent_ids: np.ndarray) -> np.ndarray:
+    """The row of each of ``agent_ids`` in a received ObservationBatch (-1 where absent)."""
+    ids = read(msg.agent_ids, np.uint32).astype(np.int64)
+    lookup = np.full(max(int(ids.max(initial=-1)), int(agent_ids.max())) + 1, -1, dtype=np.int64)
+    lookup[ids] = np.arange(len(ids))
+    return lookup[agent_ids]
 
 
 def encode_agent_observations(batch: AgentBatch, rewards: np.ndarray, done: bool, rows=None) -> list[AgentObservation]:
@@ -188,7 +196,7 @@ def decode_scenario(msg: ScenarioDescription) -> Scenario:
 # ---------------------------------------------------------------------------- learning
 def encode_rollout(arrays: dict[str, np.ndarray], weights_version: int = 0, host: str = "", episode: int = 0,
                    food: float = 0.0) -> Rollout:
-    """A chunk's arrays (``RolloutCollector.arrays``: T+1 observation frames, T of the rest)."""
+    """A chunk's arrays (``Actor.rollout``'s: T+1 observation frames, T of the rest; other keys ignored)."""
     frames, agents, channels, size, _ = arrays["obs"].shape
     optional = {name: arrays[key] for key, name in (("sample_mask", "sample_masks"), ("extra", "extra_inputs"))
                 if key in arrays}
@@ -247,23 +255,3 @@ def decode_weights(msg: Weights) -> WeightsPayload:
     return WeightsPayload(int(msg.version), bytes(msg.data), msg.checkpoint_id, json.loads(msg.model_config_json))
 
 
-# -------------------------------------- adapters: the old names world_node and agent_host call (remove after merge)
-from .viewer_msgs import Clock, MarkerArray, OccupancyGrid, agent_markers, clock, occupancy_grid, sim_time  # noqa: E402,F401
-
-scenario_description, scenario_from_description = encode_scenario, decode_scenario
-batch_from_observation_batch, batch_from_agent_observations = decode_observation_batch, decode_agent_observations
-action_batch, applied_actions, world_state = encode_actions, encode_applied, encode_state
-
-
-def observation_batch(step, observations, action_mask, loads, rewards, queued, positions, world_shape, done,
-                      agent_ids=None, train_masks=None, encoding="compact") -> ObservationBatch:
-    batch = AgentBatch(step, np.arange(len(observations)), observations, action_mask, positions, loads, queued,
-                       world_shape)
-    return encode_observation_batch(batch, rewards, done, agent_ids, train_masks, encoding)
-
-
-def agent_observations(step, agent_ids, observations, action_mask, loads, rewards, queued, positions, world_shape,
-                       done) -> list[AgentObservation]:
-    batch = AgentBatch(step, np.arange(len(observations)), observations, action_mask, positions, loads, queued,
-                       world_shape)
-    return encode_agent_observations(batch, rewards, done, np.asarray(agent_ids, dtype=np.int64))

@@ -120,6 +120,19 @@ def check_domain_id(domain_id: int | None) -> None:
         raise ValueError(f"ROS domain id {domain_id} is outside 0-232")
 
 
+@contextmanager
+def stop_requests() -> Iterator[list]:
+    """SIGINT and SIGTERM append to the yielded list instead of interrupting (a node that must
+    close files or save a checkpoint polls it); the previous handlers come back on exit."""
+    stop: list[bool] = []
+    handlers = {s: signal.signal(s, lambda *_: stop.append(True)) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield stop
+    finally:
+        for sig, handler in handlers.items():
+            signal.signal(sig, handler)
+
+
 def _interrupt(signum, frame) -> None:
     raise KeyboardInterrupt(f"signal {signum}")
 

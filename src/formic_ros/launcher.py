@@ -1,13 +1,12 @@
 """``formic run``: the world, the agent hosts (or the planner) and optionally the recorder as
 separate ROS processes, one episode, a summary, and nothing left behind.
 
-Each child runs ``python -m formic_cli.main <command>`` in a session of its own (so a terminal's
-Ctrl-C reaches only the launcher, which then stops the children in order) and with a parent-death
-signal (so even a SIGKILLed launcher leaves no orphans). Stopping is SIGINT, then SIGTERM, then
-SIGKILL to the child's whole process group, each after a grace period, and every child is
-reaped. The world waits for every agent before step 0 (discovery; with ``--record`` also for
-the recorder's subscriptions), plays the episode and prints its summary as one JSON line,
-which the launcher reads from the world's stdout.
+The launcher builds the run (:class:`RunOptions` -> one node spec per child, the options of the
+very ``serve_*`` function the child calls, see :mod:`formic_ros.node_process`) and starts and
+stops the children (:mod:`formic_ros.processes`: own session, parent-death signal, SIGINT, then
+SIGTERM, then SIGKILL, every child reaped). The world waits for every agent before step 0
+(discovery; with ``--record`` also for the recorder's subscriptions), plays the episode and
+prints its summary as one JSON line, which the launcher reads from the world's stdout.
 
 ``formic train-ros`` (:func:`launch_training`) starts distributed training the same way: the
 trainer node, the world in training mode and one learning host.
@@ -15,17 +14,11 @@ trainer node, the world in training mode and one learning host.
 
 from __future__ import annotations
 
-import ctypes
 import json
 import math
-import os
-import signal
-import subprocess
-import sys
-import tempfile
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -35,66 +28,15 @@ from formic_world import Scenario
 
 from . import qos
 from .env import check_domain_id, ros_environment
+from .node_process import node_spec
+from .processes import RECORDER_GRACE_S, Children, JsonLines, watch
+from .world_node import WorldNodeOptions
 
 if TYPE_CHECKING:
     from formic_trainer.config import TrainConfig
 
-STOP_GRACE_S = (5.0, 3.0)  # after SIGINT, after SIGTERM; then SIGKILL
-RECORDER_GRACE_S = (20.0, 5.0)  # the recorder closes its file on SIGINT
 DEFAULT_MAX_LAG = 4  # the trainer node's (formic_ros.trainer_node imports torch)
 HOST_EXIT_S = 10.0  # how long hosts get to leave by themselves after the episode
-PR_SET_PDEATHSIG = 1
-
-_libc = ctypes.CDLL(None, use_errno=True) if sys.platform.startswith("linux") else None
-
-
-def _die_with_parent() -> None:
-    """Runs in the child between fork and exec: SIGKILL me when the launcher dies."""
-    if _libc is not None:
-        _libc.prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
-
-
-@dataclass
-class Child:
-    """A spawned process and how to stop it."""
-
-    name: str
-    process: subprocess.Popen
-
-    @property
-    def alive(self) -> bool:
-        return self.process.poll() is None
-
-    def signal(self, signum: int) -> None:
-        try:
-            os.killpg(self.process.pid, signum)
-        except ProcessLookupError:
-            pass
-
-    def stop(self, grace_s: tuple[float, float] = STOP_GRACE_S) -> int:
-        """SIGINT, SIGTERM, SIGKILL (to the process group), waiting ``grace_s`` in between;
-        reaps the child and returns its exit status."""
-        for signum, grace in ((signal.SIGINT, grace_s[0]), (signal.SIGTERM, grace_s[1])):
-            if not self.alive:
-                break
-            self.signal(signum)
-            try:
-                self.process.wait(timeout=grace)
-            except subprocess.TimeoutExpired:
-                pass
-        if self.alive:
-            self.signal(signal.SIGKILL)
-        return self.process.wait()
-
-
-def spawn(name: str, args: list[str], env: dict[str, str], stdout=None, stderr=None) -> Child:
-    """Start ``formic <args>`` as a child in its own session, killed if this process dies."""
-    command = [sys.executable, "-m", "formic_cli.main", *args]
-    process = subprocess.Popen(
-        command, env=env, stdout=stdout, stderr=stderr, stdin=subprocess.DEVNULL,
-        start_new_session=True, preexec_fn=_die_with_parent,
-    )
-    return Child(name, process)
 
 
 def ids_text(ids: list[int]) -> str:
@@ -123,72 +65,30 @@ class RunOptions:
     view_port: int | None = None  # the world serves a live view (formic_view) on this port
 
 
-def world_command(opts: RunOptions, scenario_file: Path, label: str) -> list[str]:
-    args = [
-        "world", "--scenario", str(scenario_file), "--policy-label", label, "--namespace", opts.namespace,
-        "--deadline-ms", str(opts.deadline_ms), "--startup-timeout", str(opts.startup_timeout_s),
-        "--viewer-every", str(opts.viewer_every), "--json",
-    ]
-    if opts.rate_hz:
-        args += ["--rate", str(opts.rate_hz)]
-    if opts.progress:
-        args.append("--progress")
-    if opts.record:  # the recorder must hear step 0
-        args += ["--require-subscriber", qos.APPLIED_ACTIONS, "--require-subscriber", qos.STATE]
-    if opts.view_port is not None:
-        args += ["--view", "--view-port", str(opts.view_port)]
-    return args
+def world_spec(opts: RunOptions, scenario_file: Path, label: str) -> dict:
+    require = (qos.APPLIED_ACTIONS, qos.STATE) if opts.record else ()  # the recorder must hear step 0
+    options = WorldNodeOptions(
+        namespace=opts.namespace, deadline_s=opts.deadline_ms / 1e3, startup_timeout_s=opts.startup_timeout_s,
+        rate_hz=opts.rate_hz or None, viewer_every=opts.viewer_every, policy_label=label,
+        require_subscribers=require, progress=opts.progress, view_port=opts.view_port,
+    )
+    return node_spec("world", scenario=str(scenario_file), options=asdict(options), domain_id=opts.domain_id)
 
 
-def recorder_command(opts: RunOptions, team: Team) -> list[str]:
-    args = ["record", "--out", opts.record, "--namespace", opts.namespace]
-    if "formic" in team.names:
-        args += ["--model", str(opts.model or DEFAULT_MODEL)]
-    return args
+def recorder_spec(opts: RunOptions, team: Team) -> dict:
+    model = str(opts.model or DEFAULT_MODEL) if "formic" in team.names else None
+    return node_spec("recorder", out=opts.record, model=model, namespace=opts.namespace, domain_id=opts.domain_id)
 
 
-def driver_commands(opts: RunOptions, team: Team) -> dict[str, list[str]]:
+def driver_specs(opts: RunOptions, team: Team) -> dict[str, dict]:
     """The processes that answer the world: the planner node, or the agent hosts."""
     if "planner" in team.names:
-        return {"planner": ["planner", "--namespace", opts.namespace, "--once"]}
-    commands = {}
-    for i, ids in enumerate(team.split(opts.hosts)):
-        args = ["agents", "--ids", ids_text(ids), "--policy", opts.policy, "--transport", opts.transport,
-                "--namespace", opts.namespace, "--name", f"agent_host_{i}", "--once"]
-        if opts.model:
-            args += ["--model", opts.model]
-        if opts.greedy:
-            args.append("--greedy")
-        commands[f"host{i}"] = args
-    return commands
+        return {"planner": node_spec("planner", namespace=opts.namespace, once=True, domain_id=opts.domain_id)}
+    return {f"host{i}": node_spec("agents", agent_ids=[int(a) for a in ids], spec=opts.policy, once=True,
+                                  domain_id=opts.domain_id, model=opts.model, greedy=opts.greedy,
+                                  transport=opts.transport, namespace=opts.namespace, name=f"agent_host_{i}")
+            for i, ids in enumerate(team.split(opts.hosts))}
 
-
-def _wait_for_world(world: Child, recorder: Child | None, drivers: list[Child], timeout_s: float | None) -> None:
-    """Until the world exits. The recorder leaving, or a host or the planner failing, before
-    that is an error (the episode would run on without them; a failure is a bug to report)."""
-    deadline = None if timeout_s is None else time.monotonic() + timeout_s
-    while world.alive:
-        if recorder is not None and not recorder.alive:
-            raise RuntimeError(f"the recorder exited early with status {recorder.process.returncode}")
-        for child in drivers:
-            if child.process.poll():
-                raise RuntimeError(f"{child.name} failed with status {child.process.returncode} (see its log)")
-        if deadline is not None and time.monotonic() > deadline:
-            raise RuntimeError(f"the world did not finish within {timeout_s} s")
-        try:
-            world.process.wait(timeout=0.2)
-        except subprocess.TimeoutExpired:
-            pass
-
-
-
-def child_output(log_dir, name: str, files: list):
-    """Where a child process writes: stderr, or ``LOG_DIR/NAME.log`` (kept in ``files`` to close)."""
-    if log_dir is None:
-        return sys.stderr
-    Path(log_dir).mkdir(parents=True, exist_ok=True)
-    files.append(open(Path(log_dir) / f"{name}.log", "w"))
-    return files[-1]
 
 def launch(opts: RunOptions) -> dict:
     """Play one episode across processes; returns the world's summary (plus launch details).
@@ -200,48 +100,23 @@ def launch(opts: RunOptions) -> dict:
     if "planner" in team.names and opts.external:
         raise ValueError("the planner commands every agent; it cannot leave some to --external")
     check_domain_id(opts.domain_id)
-    env = ros_environment(opts.domain_id)
     label = opts.policy + (f",external:{ids_text(list(opts.external))}" if opts.external else "")
-    children: list[Child] = []
-    files = []  # output files, closed at the end
     started = time.monotonic()
-    with tempfile.TemporaryDirectory(prefix="formic-run-") as tmp:
-
-        def output(name: str):
-            return child_output(opts.log_dir, name, files)
-
-        scenario_file = Path(tmp) / "scenario.json"
+    with Children("formic-run-", ros_environment(opts.domain_id), opts.log_dir) as run:
+        scenario_file = run.dir / "scenario.json"
         scenario.save(scenario_file)
-        world_out = open(Path(tmp) / "world.json", "w+b")
-        files.append(world_out)
-        try:
-            world = spawn("world", world_command(opts, scenario_file, label), env, world_out, output("world"))
-            children.append(world)
-            recorder = None
-            if opts.record:
-                recorder = spawn("recorder", recorder_command(opts, team), env, output("recorder"), subprocess.STDOUT)
-                children.append(recorder)
-            drivers = [spawn(name, args, env, output(name), subprocess.STDOUT)
-                       for name, args in driver_commands(opts, team).items()]
-            children.extend(drivers)
-            _wait_for_world(world, recorder, drivers, opts.timeout_s)
-            if world.process.returncode != 0:
-                raise RuntimeError(f"the world exited with status {world.process.returncode}")
-            world_out.seek(0)
-            summary = json.loads(world_out.read().decode().strip().splitlines()[-1])
-            leave_by = time.monotonic() + HOST_EXIT_S  # --once drivers leave when they see the end
-            for child in drivers:
-                try:
-                    child.process.wait(timeout=max(0.0, leave_by - time.monotonic()))
-                except subprocess.TimeoutExpired:
-                    pass
-        finally:
-            codes = {child.name: child.stop(RECORDER_GRACE_S if child.name == "recorder" else STOP_GRACE_S)
-                     for child in reversed(children)}
-            for file in files:
-                file.close()
+        world_out = run.stdout("world")
+        world = run.start("world", world_spec(opts, scenario_file, label), world_out)
+        recorder = run.start("recorder", recorder_spec(opts, team), grace_s=RECORDER_GRACE_S) if opts.record else None
+        drivers = [run.start(name, spec) for name, spec in driver_specs(opts, team).items()]
+        # the recorder leaving, or a host or the planner failing, before the world ends is an error
+        watch(world, drivers, opts.timeout_s, "the world", required=recorder)
+        summary = JsonLines(world_out).new()[-1]
+        leave_by = time.monotonic() + HOST_EXIT_S  # --once drivers leave when they see the end
+        for child in drivers:
+            child.wait(leave_by - time.monotonic())
     summary.update(hosts=len(drivers), transport=opts.transport, external=list(opts.external),
-                   launch_wall_s=time.monotonic() - started, exit_codes=codes)
+                   launch_wall_s=time.monotonic() - started, exit_codes=run.codes)
     if opts.record:
         summary["recording"] = opts.record
     return summary
@@ -280,38 +155,20 @@ def first_episode(run_dir: str, fresh: bool) -> int:
     return int(read_checkpoint(latest)["progress"]["episode"])
 
 
-def training_commands(opts: TrainRunOptions, config_file: Path, start: int) -> dict[str, list[str]]:
-    """World (training mode), one learning host (batched, the whole team) and the trainer."""
-    common = ["--namespace", opts.namespace, "--train-config", str(config_file)]
+def training_specs(opts: TrainRunOptions, config_file: Path, start: int) -> dict[str, dict]:
+    """Trainer, world (training mode) and one learning host (batched, the whole team)."""
+    common = {"train_config": str(config_file), "namespace": opts.namespace, "domain_id": opts.domain_id}
     chunks = math.ceil(opts.config.episode_steps / opts.config.rollout_steps)
-    trainer = ["trainer", *common, "--run-dir", opts.run_dir, "--max-rollouts", str(opts.episodes * chunks),
-               "--max-lag", str(max(DEFAULT_MAX_LAG, chunks)), "--json"]
-    if opts.fresh:
-        trainer.append("--fresh")
+    world = WorldNodeOptions(namespace=opts.namespace, deadline_s=opts.deadline_ms / 1e3,
+                             startup_timeout_s=opts.startup_timeout_s, viewer_every=opts.viewer_every)
     return {
-        "trainer": trainer,
-        "world": ["world", *common, "--episodes", str(opts.episodes), "--first-episode", str(start),
-                  "--deadline-ms", str(opts.deadline_ms), "--startup-timeout", str(opts.startup_timeout_s),
-                  "--viewer-every", str(opts.viewer_every), "--json"],
-        "host0": ["agents", *common, "--ids", f"0-{opts.config.teams[0] - 1}", "--transport", "batched",
-                  "--switch-weights", opts.switch, "--episodes", str(opts.episodes), "--first-episode", str(start),
-                  "--name", "agent_host_0"],
+        "trainer": node_spec("trainer", **common, run_dir=opts.run_dir, resume=not opts.fresh,
+                             max_rollouts=opts.episodes * chunks, max_lag=max(DEFAULT_MAX_LAG, chunks)),
+        "world": node_spec("world", train_config=str(config_file), episodes=opts.episodes,
+                           first_episode=start, options=asdict(world), domain_id=opts.domain_id),
+        "host0": node_spec("learning_agents", **common, agent_ids=list(range(opts.config.teams[0])),
+                           switch=opts.switch, episodes=opts.episodes, first_episode=start, name="agent_host_0"),
     }
-
-
-class JsonLines:
-    """The JSON objects a child prints to a file, one a line, read as they come."""
-
-    def __init__(self, file):
-        self.file, self.offset, self.partial = file, 0, b""
-
-    def new(self) -> list[dict]:
-        """The objects printed since the last call (a line still being written waits)."""
-        self.file.seek(self.offset)
-        data = self.file.read()
-        self.offset += len(data)
-        *lines, self.partial = (self.partial + data).split(b"\n")
-        return [json.loads(line) for line in lines if line.startswith(b"{")]
 
 
 def launch_training(opts: TrainRunOptions) -> dict:
@@ -320,26 +177,17 @@ def launch_training(opts: TrainRunOptions) -> dict:
     (``opts.config``) and scenario stream; resumes ``run_dir`` unless ``fresh``. Returns each
     episode's summary (the learning curve: ``EPISODE_FIELDS``) and the trainer's result;
     children are stopped and reaped in any case."""
-    from .world_node import require_one_world
+    from .training_world import require_one_world
 
     cfg = opts.config
     require_one_world(cfg)
     check_domain_id(opts.domain_id)
-    env = ros_environment(opts.domain_id)
     start = first_episode(opts.run_dir, opts.fresh)
-    children: list[Child] = []
-    files = []
     started = time.monotonic()
-    with tempfile.TemporaryDirectory(prefix="formic-train-") as tmp:
-
-        def output(name: str):
-            return child_output(opts.log_dir, name, files)
-
-        config_file = Path(tmp) / "train_config.json"
+    with Children("formic-train-", ros_environment(opts.domain_id), opts.log_dir) as run:
+        config_file = run.dir / "train_config.json"
         config_file.write_text(json.dumps(cfg.to_dict()))
-        outs = {name: open(Path(tmp) / f"{name}.json", "w+b") for name in ("trainer", "world")}
-        files.extend(outs.values())
-        commands = training_commands(opts, config_file, start)
+        outs = {name: run.stdout(name) for name in ("trainer", "world")}
         episodes: list[dict] = []
         world_lines = JsonLines(outs["world"])
 
@@ -349,40 +197,16 @@ def launch_training(opts: TrainRunOptions) -> dict:
                 if opts.on_episode is not None:
                     opts.on_episode(summary)
 
-        try:
-            for name, args in commands.items():
-                stdout = outs.get(name) or output(name)
-                children.append(spawn(name, args, env, stdout, output(name) if name in outs else subprocess.STDOUT))
-            trainer, world, host = children
-            deadline = None if opts.timeout_s is None else time.monotonic() + opts.timeout_s
-            while world.alive:
-                for child in (trainer, host):
-                    if child.process.poll():
-                        raise RuntimeError(f"{child.name} failed with status {child.process.returncode} (see its log)")
-                if deadline is not None and time.monotonic() > deadline:
-                    raise RuntimeError(f"training did not finish within {opts.timeout_s} s")
-                collect_episodes()
-                try:
-                    world.process.wait(timeout=0.5)
-                except subprocess.TimeoutExpired:
-                    pass
-            if world.process.returncode != 0:
-                raise RuntimeError(f"the world exited with status {world.process.returncode}")
-            collect_episodes()
-            try:  # the trainer leaves by itself after the last rollout's update
-                trainer.process.wait(timeout=opts.deadline_ms / 1e3)
-            except subprocess.TimeoutExpired:
-                raise RuntimeError(f"the trainer did not finish its last update within {opts.deadline_ms / 1e3:g} s") from None
-            if trainer.process.returncode != 0:
-                raise RuntimeError(f"the trainer exited with status {trainer.process.returncode}")
-            result = JsonLines(outs["trainer"]).new()[-1]
-            try:
-                host.process.wait(timeout=HOST_EXIT_S)
-            except subprocess.TimeoutExpired:
-                pass
-        finally:
-            codes = {child.name: child.stop() for child in reversed(children)}
-            for file in files:
-                file.close()
+        trainer, world, host = (run.start(name, spec, outs.get(name))
+                                for name, spec in training_specs(opts, config_file, start).items())
+        watch(world, [trainer, host], opts.timeout_s, "training", poll_s=0.5, tick=collect_episodes)
+        collect_episodes()
+        trainer.wait(opts.deadline_ms / 1e3)  # the trainer leaves by itself after the last rollout's update
+        if trainer.alive:
+            raise RuntimeError(f"the trainer did not finish its last update within {opts.deadline_ms / 1e3:g} s")
+        if trainer.process.returncode != 0:
+            raise RuntimeError(f"the trainer exited with status {trainer.process.returncode}")
+        result = JsonLines(outs["trainer"]).new()[-1]
+        host.wait(HOST_EXIT_S)
     return {"run_dir": opts.run_dir, "first_episode": start, "episodes": episodes, "trainer": result,
-            "launch_wall_s": time.monotonic() - started, "exit_codes": codes}
+            "launch_wall_s": time.monotonic() - started, "exit_codes": run.codes}

@@ -15,7 +15,6 @@ import numpy as np
 import rclpy
 import torch
 from formic_interfaces.msg import ActionBatch, ObservationBatch, Rollout, ScenarioDescription, Weights
-from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 from formic_agent.network import nest_features
 from formic_agent.policy import AgentBatch
@@ -25,8 +24,18 @@ from formic_trainer.config import TrainConfig
 from formic_trainer.worlds import Frame, share_rewards
 
 from . import convert, qos
+from .wire import read
 from .agent_host import WorldWatch, read_scenario
-from .trainer_node import ROLLOUT_DEPTH, ROLLOUTS, WEIGHTS, apply_weights, rollout_message
+from .trainer_node import apply_weights
+
+
+def rollout_message(rollout: dict[str, np.ndarray], weights_version: int, host: str, episode: int, food: float,
+                    extra: bool = True) -> Rollout:
+    """An actor's rollout as the Rollout a host sends; the odometry inputs only with ``extra``
+    (networks that read them)."""
+    if not extra:
+        rollout = {key: value for key, value in rollout.items() if key != "extra"}
+    return convert.encode_rollout(rollout, int(weights_version), host, int(episode), float(food))
 
 
 class HostActor:
@@ -87,7 +96,7 @@ class HostActor:
         food, self.food = self.food, 0.0
         if not len(self.actor.learning):  # none of these agents learns: nothing to send
             return None
-        return rollout_message(rollout, self.host, self.episode, self.chunk_version, food,
+        return rollout_message(rollout, self.chunk_version, self.host, self.episode, food,
                                extra=self.net.config.nest_input)
 
 
@@ -129,10 +138,9 @@ class LearningHost:
         node = self.control
         node.create_subscription(ScenarioDescription, qos.SCENARIO, self._on_scenario, qos.LATCHED)
         node.create_subscription(ObservationBatch, qos.OBSERVATIONS, self._on_batch, qos.STREAM)
-        node.create_subscription(Weights, WEIGHTS, self._on_weights, qos.LATCHED)
+        node.create_subscription(Weights, qos.WEIGHTS, self._on_weights, qos.LATCHED)
         self.actions_pub = node.create_publisher(ActionBatch, qos.ACTIONS, qos.STREAM)
-        self.rollouts_pub = node.create_publisher(
-            Rollout, ROLLOUTS, QoSProfile(depth=ROLLOUT_DEPTH, reliability=ReliabilityPolicy.RELIABLE))
+        self.rollouts_pub = node.create_publisher(Rollout, qos.ROLLOUTS, qos.ROLLOUT)
         self.played = ""  # scenario of the episode being (or last) played
         self.next_scenario = ""  # a scenario not played yet
         self.scenario_json = ""  # the newest scenario seen (for WorldWatch)
@@ -168,10 +176,7 @@ class LearningHost:
     # ---------------------------------------------------------------------- stepping
     def _rows(self, msg: ObservationBatch) -> np.ndarray | None:
         """Rows of this host's agents in the message, in id order; None unless all are there."""
-        ids = convert.read(msg.agent_ids, np.uint32).astype(np.int64)
-        lookup = np.full(max(int(ids.max(initial=-1)), int(self.ids.max())) + 1, -1, dtype=np.int64)
-        lookup[ids] = np.arange(len(ids))
-        rows = lookup[self.ids]
+        rows = convert.rows_of(msg, self.ids)
         return rows if (rows >= 0).all() else None
 
     def _take(self, msg: ObservationBatch) -> bool:
@@ -187,7 +192,7 @@ class LearningHost:
             self.log.warning("a new episode started before this one ended: its last chunk is dropped")
             self.playing = False
         if self.playing and step == self.answered_step and not msg.done:
-            self.actions_pub.publish(convert.action_batch(step, self.ids, self.answer))  # a re-send
+            self.actions_pub.publish(convert.encode_actions(step, self.ids, self.answer))  # a re-send
             return True
         if not self.playing:
             if msg.done or step != 0:
@@ -201,11 +206,11 @@ class LearningHost:
                 self.log.error("the observations carry no training masks: run the world with --training-masks")
                 self.warned_masks = True
             return True
-        batch = convert.batch_from_observation_batch(msg, rows)
+        batch = convert.decode_observation_batch(msg, rows)
         if not self.playing:
             self._start_episode(batch)
         else:
-            team_rewards = convert.read(msg.rewards, np.float32)  # every agent's: for team_reward
+            team_rewards = read(msg.rewards, np.float32)  # every agent's: for team_reward
             rollout = self.actor.outcome(batch, team_rewards, rows, bool(msg.done))
             if rollout is not None:
                 self.rollouts_pub.publish(rollout)
@@ -219,7 +224,7 @@ class LearningHost:
                 self.playing = False
                 self.episodes += 1
                 return True
-        masks = convert.read(msg.train_masks, np.uint8).reshape(-1, convert.ACTION_COUNT)[rows].astype(bool)
+        masks = read(msg.train_masks, np.uint8).reshape(-1, convert.ACTION_COUNT)[rows].astype(bool)
         self.ready = (batch, masks)
         return True
 
@@ -250,7 +255,7 @@ class LearningHost:
         self.ready = None
         self.answer = self.actor.act(batch, masks)
         self.answered_step = batch.step
-        self.actions_pub.publish(convert.action_batch(batch.step, self.ids, self.answer))
+        self.actions_pub.publish(convert.encode_actions(batch.step, self.ids, self.answer))
 
 
 def serve_learning_agents(

@@ -13,8 +13,6 @@ from __future__ import annotations
 
 import copy
 import hashlib
-import json
-import signal
 import time
 from collections import OrderedDict, deque
 from collections.abc import Callable
@@ -24,68 +22,17 @@ import numpy as np
 import torch
 
 from formic_agent.checkpoint import CheckpointError, read_checkpoint, state_dict_bytes
-from formic_agent.network import N_ACTIONS, N_EXTRA_INPUTS, ForMICNet, NetworkConfig
+from formic_agent.network import N_EXTRA_INPUTS, ForMICNet, NetworkConfig
 from formic_trainer.algorithm import sampling_mask
 from formic_trainer.config import TrainConfig
 from formic_trainer.learner import Learner
 
-ROLLOUTS = "rollouts"
-WEIGHTS = "weights"
-ROLLOUT_DEPTH = 16
+from . import qos
+
 DEFAULT_MAX_LAG = 4  # weights versions a rollout may lag behind and still be learned from
 
 
 # ----------------------------------------------------------------------------- messages
-def rollout_message(rollout: dict[str, np.ndarray], host: str = "", episode: int = 0, weights_version: int = 0,
-                    food: float = 0.0, extra: bool = True):
-    """An actor's rollout (:meth:`formic_trainer.actor.Actor.rollout`) as a Rollout message;
-    the odometry inputs only with ``extra`` (networks that read them)."""
-    from formic_interfaces.msg import Rollout
-
-    from .convert import f32, u8, u32
-
-    frames, agents, channels, size, _ = rollout["obs"].shape
-    return Rollout(
-        weights_version=int(weights_version), host=host, episode=int(episode),
-        n_agents=agents, n_steps=frames - 1, channels=channels, size=size,
-        agent_ids=u32(rollout["agent_ids"]), observations=f32(rollout["obs"]), actions=u8(rollout["actions"]),
-        rewards=f32(rollout["rewards"]), valid_masks=u8(rollout["train_mask"]), loss_mask=u8(rollout["loss_mask"]),
-        value_mask=u8(rollout["value_mask"]),
-        sample_masks=u8(rollout["sample_mask"]) if "sample_mask" in rollout else b"",
-        extra_inputs=f32(rollout["extra"] if extra and "extra" in rollout else np.zeros(0)),
-        food=float(food),
-    )
-
-
-def rollout_arrays(msg) -> dict[str, np.ndarray]:
-    """A received Rollout as arrays (T+1 observation frames, T of everything else)."""
-    steps, agents, channels, size = int(msg.n_steps), int(msg.n_agents), int(msg.channels), int(msg.size)
-
-    def field(name: str, dtype, shape: tuple[int, ...]) -> np.ndarray:
-        values = np.frombuffer(getattr(msg, name), dtype=dtype)
-        if values.size != int(np.prod(shape)):
-            raise ValueError(f"Rollout.{name} has {values.size} values, expected {int(np.prod(shape))} {shape}")
-        return values.reshape(shape)
-
-    if steps < 1 or agents < 1:
-        raise ValueError(f"empty rollout ({steps} steps, {agents} agents)")
-    optional = {}
-    if len(msg.sample_masks):
-        optional["sample_mask"] = field("sample_masks", np.uint8, (steps, agents, N_ACTIONS)).astype(bool)
-    if len(msg.extra_inputs):
-        optional["extra"] = field("extra_inputs", np.float32, (steps + 1, agents, N_EXTRA_INPUTS))
-    return {
-        "agent_ids": field("agent_ids", np.uint32, (agents,)).astype(np.int64),
-        "obs": field("observations", np.float32, (steps + 1, agents, channels, size, size)),
-        "actions": field("actions", np.uint8, (steps, agents)).astype(np.int64),
-        "rewards": field("rewards", np.float32, (steps, agents)),
-        "train_mask": field("valid_masks", np.uint8, (steps, agents, N_ACTIONS)).astype(bool),
-        "loss_mask": field("loss_mask", np.uint8, (steps, agents)).astype(np.float32),
-        "value_mask": field("value_mask", np.uint8, (steps, agents)).astype(np.float32),
-        **optional,
-    }
-
-
 def apply_weights(policy, msg) -> int:
     """Load a Weights message into a learned policy (``weights_only`` loading); returns its
     version. Hosts call this between episodes."""
@@ -203,7 +150,7 @@ class RemoteLearner:
 
 
 # ----------------------------------------------------------------------------- the node
-def serve_trainer(cfg: TrainConfig, run_dir: Path, resume: bool = True, namespace: str = "/formic",
+def serve_trainer(cfg: TrainConfig, run_dir: Path, resume: bool = True, namespace: str = qos.DEFAULT_NAMESPACE,
                   domain_id: int | None = None, max_updates: int | None = None, max_rollouts: int | None = None,
                   max_lag: int = DEFAULT_MAX_LAG, log: Callable[[str], None] = print) -> dict:
     """Run node ``trainer`` until SIGINT/SIGTERM, ``max_updates`` updates or ``max_rollouts``
@@ -213,62 +160,52 @@ def serve_trainer(cfg: TrainConfig, run_dir: Path, resume: bool = True, namespac
     from formic_interfaces.msg import Rollout, Weights
     from rclpy.duration import Duration
     from rclpy.node import Node
-    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-    from .env import ros_session
-    from .qos import LATCHED
+    from .convert import WeightsPayload, decode_rollout, encode_weights
+    from .env import ros_session, stop_requests
 
     learner = RemoteLearner(cfg, run_dir, resume=resume, max_lag=max_lag, log=log)
-    rollout_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=ROLLOUT_DEPTH,
-                             reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
     pending: deque = deque()
-    stop: list[bool] = []
     updates_here = rollouts_here = 0
     started = time.monotonic()
     try:
-        with ros_session(domain_id) as executor:
-            handlers = {s: signal.signal(s, lambda *_: stop.append(True)) for s in (signal.SIGINT, signal.SIGTERM)}
-            try:
-                node = Node("trainer", namespace=namespace)
-                executor.add_node(node)
-                publisher = node.create_publisher(Weights, WEIGHTS, LATCHED)
-                node.create_subscription(Rollout, ROLLOUTS, lambda msg: pending.append(msg), rollout_qos)
-                model_json = json.dumps(learner.learner.net.config.to_dict())
+        with ros_session(domain_id) as executor, stop_requests() as stop:
+            node = Node("trainer", namespace=namespace)
+            executor.add_node(node)
+            publisher = node.create_publisher(Weights, qos.WEIGHTS, qos.LATCHED)
+            node.create_subscription(Rollout, qos.ROLLOUTS, lambda msg: pending.append(msg), qos.ROLLOUT)
+            model_config = learner.learner.net.config.to_dict()
 
-                def broadcast() -> None:
-                    data, content_id = learner.weights_payload()
-                    publisher.publish(Weights(version=learner.version, model_config_json=model_json,
-                                              checkpoint_id=content_id, data=data))
+            def broadcast() -> None:
+                data, content_id = learner.weights_payload()
+                publisher.publish(encode_weights(WeightsPayload(learner.version, data, content_id, model_config)))
 
+            broadcast()
+            log(f"trainer: weights version {learner.version} published; waiting for rollouts")
+            while not (stop or (max_updates is not None and updates_here >= max_updates)
+                       or (max_rollouts is not None and rollouts_here >= max_rollouts)):
+                executor.spin_once(timeout_sec=0.0 if pending else 0.1)
+                if not pending:
+                    continue
+                msg = pending.popleft()
+                rollouts_here += 1
+                try:
+                    arrays = decode_rollout(msg)
+                except ValueError as exc:
+                    learner.dropped += 1
+                    log(f"dropped a malformed rollout from {msg.host or '?'}: {exc}")
+                    continue
+                stats = learner.learn(arrays, msg.weights_version, msg.host, msg.episode, msg.food)
+                if stats is None:
+                    continue
+                updates_here += 1
                 broadcast()
-                log(f"trainer: weights version {learner.version} published; waiting for rollouts")
-                while not (stop or (max_updates is not None and updates_here >= max_updates)
-                           or (max_rollouts is not None and rollouts_here >= max_rollouts)):
-                    executor.spin_once(timeout_sec=0.0 if pending else 0.1)
-                    if not pending:
-                        continue
-                    msg = pending.popleft()
-                    rollouts_here += 1
-                    try:
-                        arrays = rollout_arrays(msg)
-                    except ValueError as exc:
-                        learner.dropped += 1
-                        log(f"dropped a malformed rollout from {msg.host or '?'}: {exc}")
-                        continue
-                    stats = learner.learn(arrays, msg.weights_version, msg.host, msg.episode, msg.food)
-                    if stats is None:
-                        continue
-                    updates_here += 1
-                    broadcast()
-                    log(f"update {learner.version}: {msg.n_steps}x{msg.n_agents} from {msg.host or '?'} "
-                        f"(episode {msg.episode}, lag {stats['lag']:.0f}, food {msg.food:.1f}) "
-                        f"loss {stats['loss']:.3f}"
-                        + (f"; episode food {stats['episode_food']:.1f}" if "episode_food" in stats else ""))
-                if not stop:  # the last weights reach the hosts before the node goes
-                    publisher.wait_for_all_acked(Duration(seconds=2.0))
-            finally:
-                for sig, handler in handlers.items():
-                    signal.signal(sig, handler)
+                log(f"update {learner.version}: {msg.n_steps}x{msg.n_agents} from {msg.host or '?'} "
+                    f"(episode {msg.episode}, lag {stats['lag']:.0f}, food {msg.food:.1f}) "
+                    f"loss {stats['loss']:.3f}"
+                    + (f"; episode food {stats['episode_food']:.1f}" if "episode_food" in stats else ""))
+            if not stop:  # the last weights reach the hosts before the node goes
+                publisher.wait_for_all_acked(Duration(seconds=2.0))
     finally:
         learner.close()
     return {"run_dir": str(run_dir), "version": learner.version, "updates": updates_here,

@@ -1,0 +1,166 @@
+"""The launcher's child processes: start one node process in a session of its own (so a
+terminal's Ctrl-C reaches only the launcher, which then stops the children in order) and with a
+parent-death signal (so even a SIGKILLed launcher leaves no orphans); stop it with SIGINT, then
+SIGTERM, then SIGKILL to its whole process group, each after a grace period, and reap it; its
+log file; the JSON lines it prints."""
+
+from __future__ import annotations
+
+import ctypes
+import json
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+STOP_GRACE_S = (5.0, 3.0)  # after SIGINT, after SIGTERM; then SIGKILL
+RECORDER_GRACE_S = (20.0, 5.0)  # the recorder closes its file on SIGINT
+PR_SET_PDEATHSIG = 1
+
+_libc = ctypes.CDLL(None, use_errno=True) if sys.platform.startswith("linux") else None
+
+
+def _die_with_parent() -> None:
+    """Runs in the child between fork and exec: SIGKILL me when the launcher dies."""
+    if _libc is not None:
+        _libc.prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
+
+
+@dataclass
+class Child:
+    """A spawned process and how to stop it."""
+
+    name: str
+    process: subprocess.Popen
+    grace_s: tuple[float, float] = STOP_GRACE_S  # after SIGINT, after SIGTERM
+
+    @property
+    def alive(self) -> bool:
+        return self.process.poll() is None
+
+    @property
+    def failed(self) -> bool:
+        """Exited with a non-zero status."""
+        return bool(self.process.poll())
+
+    def signal(self, signum: int) -> None:
+        try:
+            os.killpg(self.process.pid, signum)
+        except ProcessLookupError:
+            pass
+
+    def wait(self, timeout_s: float) -> None:
+        """Wait up to ``timeout_s`` for the child to exit (it may still run afterwards)."""
+        try:
+            self.process.wait(timeout=max(0.0, timeout_s))
+        except subprocess.TimeoutExpired:
+            pass
+
+    def stop(self) -> int:
+        """SIGINT, SIGTERM, SIGKILL (to the process group), waiting ``grace_s`` in between;
+        reaps the child and returns its exit status."""
+        for signum, grace in ((signal.SIGINT, self.grace_s[0]), (signal.SIGTERM, self.grace_s[1])):
+            if not self.alive:
+                break
+            self.signal(signum)
+            self.wait(grace)
+        if self.alive:
+            self.signal(signal.SIGKILL)
+        return self.process.wait()
+
+
+def watch(main: Child, others: list[Child], timeout_s: float | None, what: str, poll_s: float = 0.2,
+          required: Child | None = None, tick=None) -> None:
+    """Until ``main`` exits (with status 0, else RuntimeError), calling ``tick`` every ``poll_s``.
+    One of ``others`` failing, ``required`` leaving, or ``timeout_s`` passing first is an error."""
+    deadline = None if timeout_s is None else time.monotonic() + timeout_s
+    while main.alive:
+        if required is not None and not required.alive:
+            raise RuntimeError(f"the {required.name} exited early with status {required.process.returncode}")
+        for child in others:
+            if child.failed:
+                raise RuntimeError(f"{child.name} failed with status {child.process.returncode} (see its log)")
+        if deadline is not None and time.monotonic() > deadline:
+            raise RuntimeError(f"{what} did not finish within {timeout_s} s")
+        if tick is not None:
+            tick()
+        main.wait(poll_s)
+    if main.process.returncode != 0:
+        raise RuntimeError(f"the {main.name} exited with status {main.process.returncode}")
+
+
+def spawn(name: str, spec: dict, spec_dir: Path, env: dict[str, str], stdout=None, stderr=None,
+          grace_s: tuple[float, float] = STOP_GRACE_S) -> Child:
+    """Start node process ``name`` (:mod:`formic_ros.node_process`) on ``spec``, written as
+    ``spec_dir/NAME.options.json``; in its own session, killed if this process dies."""
+    options = Path(spec_dir) / f"{name}.options.json"
+    options.write_text(json.dumps(spec))
+    command = [sys.executable, "-m", "formic_ros.node_process", "--options", str(options)]
+    process = subprocess.Popen(
+        command, env=env, stdout=stdout, stderr=stderr, stdin=subprocess.DEVNULL,
+        start_new_session=True, preexec_fn=_die_with_parent,
+    )
+    return Child(name, process, grace_s)
+
+
+class Children:
+    """The child processes of one launch, as a context: on exit every child is stopped (in
+    reverse order, each with its grace periods) and reaped, its files closed and the launch's
+    temporary directory :attr:`dir` (option files, stdout files) removed; exit statuses in
+    :attr:`codes`. A child's log goes to stderr, or to ``LOG_DIR/NAME.log``."""
+
+    def __init__(self, prefix: str, env: dict[str, str], log_dir: str | None):
+        self._tmp = tempfile.TemporaryDirectory(prefix=prefix)
+        self.dir, self.env, self.log_dir = Path(self._tmp.name), env, log_dir
+        self.children: list[Child] = []
+        self.files: list = []
+        self.codes: dict[str, int] = {}
+
+    def __enter__(self) -> Children:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        try:
+            self.codes = {child.name: child.stop() for child in reversed(self.children)}
+        finally:
+            for file in self.files:
+                file.close()
+            self._tmp.cleanup()
+
+    def start(self, name: str, spec: dict, stdout=None, grace_s: tuple[float, float] = STOP_GRACE_S) -> Child:
+        """Child ``name`` on ``spec``: its output (stdout too, unless given) to its log."""
+        log = self._log(name)
+        streams = (stdout, log) if stdout is not None else (log, subprocess.STDOUT)
+        self.children.append(spawn(name, spec, self.dir, self.env, *streams, grace_s=grace_s))
+        return self.children[-1]
+
+    def _log(self, name: str):
+        if self.log_dir is None:
+            return sys.stderr
+        Path(self.log_dir).mkdir(parents=True, exist_ok=True)
+        self.files.append(open(Path(self.log_dir) / f"{name}.log", "w"))
+        return self.files[-1]
+
+    def stdout(self, name: str):
+        """A file in :attr:`dir` for a child's stdout (read back with :class:`JsonLines`)."""
+        self.files.append(open(self.dir / f"{name}.json", "w+b"))
+        return self.files[-1]
+
+
+class JsonLines:
+    """The JSON objects a child prints to a file, one a line, read as they come."""
+
+    def __init__(self, file):
+        self.file, self.offset, self.partial = file, 0, b""
+
+    def new(self) -> list[dict]:
+        """The objects printed since the last call (a line still being written waits)."""
+        self.file.seek(self.offset)
+        data = self.file.read()
+        self.offset += len(data)
+        *lines, self.partial = (self.partial + data).split(b"\n")
+        return [json.loads(line) for line in lines if line.startswith(b"{")]

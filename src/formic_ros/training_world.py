@@ -1,0 +1,58 @@
+"""Distributed training's world: the world node playing episode after episode on the scenarios
+the in-process trainer would draw, with the training masks in the observation batches."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import TYPE_CHECKING, Callable
+
+from .world_node import WorldNode, WorldNodeOptions
+
+if TYPE_CHECKING:
+    from formic_trainer.config import TrainConfig
+
+
+def require_one_world(cfg: TrainConfig) -> None:
+    """A world node serves one world: distributed training needs one meta-agent team."""
+    if len(cfg.teams) != 1:
+        raise ValueError(f"distributed training runs one meta-agent world; teams={list(cfg.teams)} "
+                         "(set one team size, e.g. --set teams=16)")
+
+
+def serve_training_world(
+    cfg: TrainConfig,
+    episodes: int,
+    options: WorldNodeOptions,
+    first_episode: int = 0,
+    domain_id: int | None = None,
+    on_episode: Callable[[dict], None] | None = None,
+) -> list[dict]:
+    """Distributed training's world: ``episodes`` episodes, each on a new scenario drawn as the
+    in-process trainer draws them (:func:`formic_trainer.worlds.sample_scenarios` from the
+    run's scenario stream at ``first_episode``: world size, obstacles, curriculum intensities,
+    training start), with the training masks in the observations. One meta-agent world: the
+    configuration's ``teams`` must hold one team. ``on_episode`` gets each episode's summary
+    (with ``episode``, the global episode number, and the curriculum's intensities)."""
+    from formic_trainer.worlds import sample_scenarios, scenario_rng
+
+    from .env import ros_session
+
+    require_one_world(cfg)
+    options = replace(options, training_masks=True, policy_label=options.policy_label or "formic:learning")
+    rng = scenario_rng(cfg, first_episode)
+    summaries = []
+    with ros_session(domain_id) as executor:
+        node = None
+        for episode in range(first_episode, first_episode + episodes):
+            (scenario,), highway, deposit = sample_scenarios(cfg, rng, episode)
+            if node is None:
+                node = WorldNode(scenario, options)
+                executor.add_node(node)
+            else:
+                node.load(scenario)
+            summary = node.run(executor, last=episode + 1 == first_episode + episodes)
+            summary.update(episode=episode, highway_intensity=highway, deposit_strength=deposit)
+            summaries.append(summary)
+            if on_episode is not None:
+                on_episode(summary)
+    return summaries
