@@ -106,3 +106,17 @@ def open_live_view(port: int, wait: bool = False):
         while not view.wait_for_viewer(0.2):
             pass
     return view
+
+
+def _hosts_network(ctx, param, value) -> bool:
+    if value:
+        import os
+
+        os.environ["FORMIC_DDS_NETWORK"] = "hosts"  # read by formic_ros.env in this process and its children
+    return value
+
+
+hosts_network_option = click.option(
+    "--hosts-network", is_flag=True, expose_value=False, is_eager=True, callback=_hosts_network,
+    help="DDS on every network interface (default: loopback only) for nodes on several machines; this "
+         "exposes the domain's UDP ports to anyone on the network, with no DDS security (docs/ros.md).")

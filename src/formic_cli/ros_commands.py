@@ -10,7 +10,7 @@ import sys
 
 import click
 
-from .options import option_group, scenario_from, team_options, view_options, world_options
+from .options import hosts_network_option, option_group, scenario_from, team_options, view_options, world_options
 from .summary import emit_json, print_episode_summary
 
 NAMESPACE_HELP = "ROS namespace of the ForMIC topics and nodes."
@@ -58,6 +58,7 @@ def _sigterm_as_interrupt() -> None:
 
 # ----------------------------------------------------------------------------------- run
 @click.command()
+@hosts_network_option
 @world_options
 @team_options
 @click.option("--hosts", default=1, show_default=True, help="Agent host processes to split the team over.")
@@ -106,6 +107,7 @@ def run(policy, model, greedy, scenario_file, hosts, transport, external, record
 
 # --------------------------------------------------------------------------------- world
 @click.command()
+@hosts_network_option
 @world_options
 @click.option("--scenario", "scenario_file", type=click.Path(exists=True, dir_okay=False),
               help="Serve a stored scenario (its configuration wins over world options).")
@@ -118,6 +120,9 @@ def run(policy, model, greedy, scenario_file, hosts, transport, external, record
 @click.option("--require-subscriber", "require", multiple=True,
               type=click.Choice(["state", "applied_actions", "observations", "summary", "scenario", "score"]),
               help="Do not start before this topic has a subscriber (e.g. a recorder); repeatable.")
+@click.option("--recorders", default=0, show_default=True,
+              help="Do not step before this many recorders (`formic record`) have matched every topic; "
+                   "recorders already running when the world starts are waited for anyway.")
 @click.option("--stay", is_flag=True, help="Keep serving the latched scenario and summary after the episode.")
 @click.option("--train-config", type=click.Path(exists=True, dir_okay=False),
               help="Training mode: play --episodes episodes on scenarios drawn as `formic train` draws them "
@@ -129,7 +134,7 @@ def run(policy, model, greedy, scenario_file, hosts, transport, external, record
 @view_options(wait=False)
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as one JSON line.")
 def world(scenario_file, policy_label, namespace, domain_id, deadline_ms, startup_timeout, rate, viewer_every,
-          dt, training_masks, observation_encoding, require, stay, train_config, episodes, first_episode, progress,
+          dt, training_masks, observation_encoding, require, recorders, stay, train_config, episodes, first_episode, progress,
           live_view, view_port, as_json, **world_kw) -> None:
     """The world node: owns the simulation and steps it with the agents over ROS."""
     from formic_ros.training_world import require_one_world, serve_training_world
@@ -139,7 +144,8 @@ def world(scenario_file, policy_label, namespace, domain_id, deadline_ms, startu
         namespace=namespace, deadline_s=deadline_ms / 1e3, startup_timeout_s=startup_timeout, rate_hz=rate,
         viewer_every=viewer_every, dt=dt, policy_label=policy_label, training_masks=training_masks,
         observation_encoding=observation_encoding,
-        require_subscribers=tuple(require), progress=progress, view_port=view_port if live_view else None,
+        require_subscribers=tuple(require), recorders=recorders, progress=progress,
+        view_port=view_port if live_view else None,
     )
     if train_config:
         from formic_trainer.config import load_train_config
@@ -168,6 +174,7 @@ def _print_training_episode(summary: dict) -> None:
 
 # -------------------------------------------------------------------------------- agents
 @click.command()
+@hosts_network_option
 @click.option("--ids", required=True, help="Agents this host drives, e.g. 0-31 or 0-3,8-11.")
 @click.option("--policy", default="formic", show_default=True,
               help="Policy, or a team spec with global ids such as formic:0-15,csaf11:16-31.")
@@ -216,6 +223,7 @@ def agents(ids, policy, model, greedy, transport, namespace, domain_id, name, th
 
 # ------------------------------------------------------------------------------ training
 @click.command("train-ros")
+@hosts_network_option
 @click.option("--preset", default="cpu", show_default=True, type=click.Choice(["cpu", "paper"]))
 @click.option("--train-config", type=click.Path(exists=True, dir_okay=False),
               help="Start from this training configuration (a run directory's config.json) instead of --preset.")
@@ -269,6 +277,7 @@ def train_ros(preset, train_config, overrides, run_dir, episodes, fresh, switch_
 
 # ------------------------------------------------------------------------------- planner
 @click.command()
+@hosts_network_option
 @click.option("--namespace", default="/formic", show_default=True, help=NAMESPACE_HELP)
 @click.option("--domain-id", type=int, help=DOMAIN_HELP)
 @click.option("--once", is_flag=True, help="Exit when the episode ends.")

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import click
 
-from .options import open_live_view, view_options
+from .options import hosts_network_option, open_live_view, view_options
 from .summary import emit_json
 
 NAMESPACE_HELP = "ROS namespace of the ForMIC topics and nodes."
@@ -46,6 +46,7 @@ def _split(values: tuple[str, ...]) -> tuple[str, ...]:
 
 # -------------------------------------------------------------------------------- record
 @click.command("record")
+@hosts_network_option
 @click.option("--out", required=True, type=click.Path(file_okay=False),
               help="Recording directory to create (rosbag2 with MCAP storage).")
 @click.option("--topics", multiple=True, metavar="TOPIC[,TOPIC]",
@@ -178,6 +179,7 @@ def training_config(preset: str, config_file: str | None, overrides: tuple[str, 
 
 
 @click.command("trainer")
+@hosts_network_option
 @click.option("--preset", default="cpu", show_default=True, type=click.Choice(["cpu", "paper"]))
 @click.option("--run-dir", type=click.Path(file_okay=False), default="runs/formic-ros", show_default=True,
               help="Checkpoints (latest.pt) and TensorBoard logs; resumed unless --fresh.")

@@ -27,7 +27,7 @@ from formic_runtime.team import Team
 from formic_world import Scenario
 
 from . import qos
-from .env import check_domain_id, ros_environment
+from .env import check_domain_id, ros_environment, warn_if_exposed
 from .node_process import node_spec
 from .processes import RECORDER_GRACE_S, Children, JsonLines, watch
 from .world_node import WorldNodeOptions
@@ -66,11 +66,10 @@ class RunOptions:
 
 
 def world_spec(opts: RunOptions, scenario_file: Path, label: str) -> dict:
-    require = (qos.APPLIED_ACTIONS, qos.STATE) if opts.record else ()  # the recorder must hear step 0
-    options = WorldNodeOptions(
+    options = WorldNodeOptions(  # a recorder must have matched every topic before step 0
         namespace=opts.namespace, deadline_s=opts.deadline_ms / 1e3, startup_timeout_s=opts.startup_timeout_s,
         rate_hz=opts.rate_hz or None, viewer_every=opts.viewer_every, policy_label=label,
-        require_subscribers=require, progress=opts.progress, view_port=opts.view_port,
+        recorders=1 if opts.record else 0, progress=opts.progress, view_port=opts.view_port,
     )
     return node_spec("world", scenario=str(scenario_file), options=asdict(options), domain_id=opts.domain_id)
 
@@ -102,6 +101,7 @@ def launch(opts: RunOptions) -> dict:
     check_domain_id(opts.domain_id)
     label = opts.policy + (f",external:{ids_text(list(opts.external))}" if opts.external else "")
     started = time.monotonic()
+    warn_if_exposed()
     with Children("formic-run-", ros_environment(opts.domain_id), opts.log_dir) as run:
         scenario_file = run.dir / "scenario.json"
         scenario.save(scenario_file)
@@ -184,6 +184,7 @@ def launch_training(opts: TrainRunOptions) -> dict:
     check_domain_id(opts.domain_id)
     start = first_episode(opts.run_dir, opts.fresh)
     started = time.monotonic()
+    warn_if_exposed()
     with Children("formic-train-", ros_environment(opts.domain_id), opts.log_dir) as run:
         config_file = run.dir / "train_config.json"
         config_file.write_text(json.dumps(cfg.to_dict()))

@@ -60,17 +60,26 @@ class Child:
         except subprocess.TimeoutExpired:
             pass
 
-    def stop(self) -> int:
-        """SIGINT, SIGTERM, SIGKILL (to the process group), waiting ``grace_s`` in between;
-        reaps the child and returns its exit status."""
-        for signum, grace in ((signal.SIGINT, self.grace_s[0]), (signal.SIGTERM, self.grace_s[1])):
-            if not self.alive:
-                break
-            self.signal(signum)
-            self.wait(grace)
-        if self.alive:
-            self.signal(signal.SIGKILL)
-        return self.process.wait()
+    @property
+    def name_and_status(self) -> tuple[str, int]:
+        return self.name, self.process.wait()
+
+
+def stop_all(children: list[Child]) -> dict[str, int]:
+    """Stop every child at once: SIGINT to all, then SIGTERM to those still running, then
+    SIGKILL, each step waiting on one shared deadline (the slowest child's grace), so a launch
+    with many children stops as fast as its slowest one; reaps them and returns their statuses."""
+    for step, signum in enumerate((signal.SIGINT, signal.SIGTERM)):
+        running = [child for child in children if child.alive]
+        for child in running:
+            child.signal(signum)
+        deadline = time.monotonic() + max((child.grace_s[step] for child in running), default=0.0)
+        for child in running:
+            child.wait(deadline - time.monotonic())
+    for child in children:
+        if child.alive:
+            child.signal(signal.SIGKILL)
+    return dict(child.name_and_status for child in children)
 
 
 def watch(main: Child, others: list[Child], timeout_s: float | None, what: str, poll_s: float = 0.2,
@@ -108,8 +117,8 @@ def spawn(name: str, spec: dict, spec_dir: Path, env: dict[str, str], stdout=Non
 
 
 class Children:
-    """The child processes of one launch, as a context: on exit every child is stopped (in
-    reverse order, each with its grace periods) and reaped, its files closed and the launch's
+    """The child processes of one launch, as a context: on exit every child is stopped (all
+    at once, :func:`stop_all`) and reaped, its files closed and the launch's
     temporary directory :attr:`dir` (option files, stdout files) removed; exit statuses in
     :attr:`codes`. A child's log goes to stderr, or to ``LOG_DIR/NAME.log``."""
 
@@ -125,7 +134,7 @@ class Children:
 
     def __exit__(self, *exc) -> None:
         try:
-            self.codes = {child.name: child.stop() for child in reversed(self.children)}
+            self.codes = stop_all(self.children)
         finally:
             for file in self.files:
                 file.close()

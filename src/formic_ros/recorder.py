@@ -5,7 +5,7 @@ storage, as the CDR bytes that arrived (``raw=True``: nothing is decoded on the 
 
 The world's topics are subscribed at start, and every per-agent topic as soon as the latched
 scenario description says how many agents there are, so the world can wait for the recorder
-(:func:`recorders_matched`) before it steps; the graph is polled for the rest (anything a
+(:func:`formic_ros.graph.recorders_matched`) before it steps; the graph is polled for the rest (anything a
 user's node publishes in the namespace), with the QoS its publishers offer. The latched scenario
 description becomes the recording's run description (seed, scenario, configuration digest,
 policies, model checkpoint id, package version). SIGINT, SIGTERM or SIGHUP closes the
@@ -33,11 +33,11 @@ from formic_record.bag import BagWriter, package_version
 from formic_record.reading import Recording
 
 from . import qos as topics
+from .graph import RECORDER_NODE
 
 DISCOVERY_PERIOD_S = 0.2
 STREAM_DEPTH = 100  # the depth recorded for (and replayed with) stream topics
 SCENARIO_TYPE = topics.TOPICS[topics.SCENARIO].msgtype
-RECORDER_NODE = "recorder"  # the node name recorders_matched looks for
 
 
 def message_class(msgtype: str):
@@ -243,24 +243,6 @@ def record(out: str | Path, options: RecorderOptions, domain_id: int | None = No
         _restore(previous)
     return {"recording": str(out), "file": str(writer.mcap_path), "messages": sum(counts.values()),
             "topics": counts, "skipped": skipped}
-
-
-def recorders_present(node: Node) -> int:
-    """Recorder nodes in ``node``'s namespace (a world waits for those present at start)."""
-    namespace = node.get_namespace()
-    return sum(name == RECORDER_NODE and ns == namespace for name, ns in node.get_node_names_and_namespaces())
-
-
-def recorders_matched(node: Node, publishers, expected: int = 1) -> bool:
-    """True when at least ``expected`` recorders subscribe to the topic of every publisher in
-    ``publishers`` (rclpy publishers) and every subscription the graph shows there has matched
-    the publisher (so nothing published from now on is lost to discovery)."""
-    for publisher in publishers:
-        infos = node.get_subscriptions_info_by_topic(publisher.topic_name)
-        recorders = sum(i.node_name == RECORDER_NODE for i in infos)
-        if recorders < expected or publisher.get_subscription_count() < len(infos):
-            return False
-    return True
 
 
 def republish(path: str | os.PathLike, rate: float = 1.0, domain_id: int | None = None,

@@ -36,6 +36,7 @@ from formic_agent.policy import AgentBatch
 from formic_runtime.episode import EpisodeStats
 from formic_world import Scenario, StepResult, World
 
+from .graph import recorders_present, wait_for_recorders
 from . import convert, qos, viewer_msgs
 from .lockstep import Lockstep, RateLimitedLog
 from .wire import encoding_code, read
@@ -59,6 +60,7 @@ class WorldNodeOptions:
     training_masks: bool = False  # fill ObservationBatch.train_masks (SPEC 4 filter)
     observation_encoding: str = "compact"  # ObservationBatch: "compact" (lossless, ~10x smaller) or "float32"
     require_subscribers: tuple[str, ...] = ()  # topics (e.g. "applied_actions") needing a subscriber before step 0
+    recorders: int = 0  # recorders that must match every topic before step 0 (more if present at start)
     progress: bool = False
     view_port: int | None = None  # live view (formic_view, Foxglove WebSocket) on this port; None: none
 
@@ -171,7 +173,8 @@ class WorldNode(Node):
 
     # ---------------------------------------------------------------------- waiting
     def _wait_for_subscribers(self, executor) -> None:
-        """Before step 0: every topic in ``require_subscribers`` (a recorder's) has a subscriber."""
+        """Before step 0: every topic in ``require_subscribers`` has a subscriber, and every
+        recorder the world was told about (or found at start) has matched every topic."""
         publishers = {qos.STATE: self.state_pub, qos.APPLIED_ACTIONS: self.applied_pub,
                       qos.OBSERVATIONS: self.observations_pub, qos.SUMMARY: self.summary_pub,
                       qos.SCENARIO: self.scenario_pub, qos.SCORE: self.score_pub}
@@ -182,6 +185,12 @@ class WorldNode(Node):
                     f"no subscriber on {missing} after {self.options.startup_timeout_s:g} s; starting anyway")
                 return
             executor.spin_once(timeout_sec=0.05)
+        expected = max(self.options.recorders, recorders_present(self))  # told about, or present at start
+        publishers = [self.scenario_pub, self.summary_pub, self.state_pub, self.applied_pub, self.observations_pub,
+                      self.score_pub, self.clock_pub, self.map_pub, self.markers_pub, *self.agent_obs_pubs]
+        if expected and not wait_for_recorders(self, executor, publishers, expected, self.options.startup_timeout_s):
+            self.get_logger().warning("the recorder has not matched every topic; starting anyway")
+        self._listening_at = -np.inf  # re-read the per-agent listeners: the recorder is one
 
     def _linger(self, executor) -> None:
         """Keep the node up a moment after the last messages: a process that exits at once
