@@ -173,8 +173,7 @@ class WorldNode(Node):
 
     # ---------------------------------------------------------------------- waiting
     def _wait_for_subscribers(self, executor) -> None:
-        """Before step 0: every topic in ``require_subscribers`` has a subscriber, and every
-        recorder the world was told about (or found at start) has matched every topic."""
+        """Before step 0: ``require_subscribers`` are heard, and the recorders matched everything."""
         publishers = {qos.STATE: self.state_pub, qos.APPLIED_ACTIONS: self.applied_pub,
                       qos.OBSERVATIONS: self.observations_pub, qos.SUMMARY: self.summary_pub,
                       qos.SCENARIO: self.scenario_pub, qos.SCORE: self.score_pub}
