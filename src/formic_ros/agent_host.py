@@ -38,6 +38,7 @@ from formic_runtime.team import Team, format_ids
 from formic_runtime.threads import configure_threads
 from formic_world import Scenario
 
+from .ownership import Claim
 from . import convert, qos
 
 TRANSPORTS = ("per-agent", "batched")
@@ -92,7 +93,7 @@ class AgentHost:
         self.control.create_subscription(ScenarioDescription, qos.SCENARIO, self._on_scenario, qos.LATCHED)
         if transport == "batched":
             self.control.create_subscription(ObservationBatch, qos.OBSERVATIONS, self._on_batch, qos.STREAM)
-            self.actions_pub = self.control.create_publisher(ActionBatch, qos.ACTIONS, qos.STREAM)
+            self.actions_pub = self.control.create_publisher(ActionBatch, f"~/{qos.ACTIONS}", qos.STREAM)
         else:
             self.action_pubs = {}
             for a in self.ids.tolist():
@@ -101,6 +102,8 @@ class AgentHost:
                                          lambda msg, a=a: self._on_agent_observation(a, msg), qos.STREAM)
                 self.action_pubs[a] = node.create_publisher(AgentAction, f"~/{qos.AGENT_ACTION}", qos.STREAM)
                 self.nodes.append(node)
+        batched = self.actions_pub.topic_name if transport == "batched" else None
+        self.claim = Claim(self.control, self.ids.tolist(), batched)  # the world checks who drives an agent
         self.scenario_json = ""
         self.n_agents = 0
         self.expected = 0  # this host's agents that are in the team

@@ -23,6 +23,7 @@ from formic_trainer.algorithm import training_network
 from formic_trainer.config import TrainConfig
 from formic_trainer.worlds import Frame, share_rewards
 
+from .ownership import Claim
 from . import convert, qos
 from .wire import read
 from .agent_host import WorldWatch, read_scenario
@@ -139,7 +140,8 @@ class LearningHost:
         node.create_subscription(ScenarioDescription, qos.SCENARIO, self._on_scenario, qos.LATCHED)
         node.create_subscription(ObservationBatch, qos.OBSERVATIONS, self._on_batch, qos.STREAM)
         node.create_subscription(Weights, qos.WEIGHTS, self._on_weights, qos.LATCHED)
-        self.actions_pub = node.create_publisher(ActionBatch, qos.ACTIONS, qos.STREAM)
+        self.actions_pub = node.create_publisher(ActionBatch, f"~/{qos.ACTIONS}", qos.STREAM)
+        self.claim = Claim(node, list(self.ids), self.actions_pub.topic_name)
         self.rollouts_pub = node.create_publisher(Rollout, qos.ROLLOUTS, qos.ROLLOUT)
         self.played = ""  # scenario of the episode being (or last) played
         self.next_scenario = ""  # a scenario not played yet

@@ -55,6 +55,7 @@ class ActionInbox:
         self.duplicates = 0
         self.closed_step = -1
         self.closed_actions = np.full(n_agents, NO_ACTION, dtype=np.int64)
+        self.gate: Callable[[str, np.ndarray], np.ndarray] | None = None  # (topic, ids) -> mask of owned actions
 
     def open(self, step: int) -> None:
         self.step, self.is_open = step, True
@@ -71,15 +72,17 @@ class ActionInbox:
         self.rejected[reason] += count
         self.log(f"rejected action ({reason})", detail)
 
-    def offer_one(self, step: int, agent: int, action: int) -> None:
+    def offer_one(self, step: int, agent: int, action: int, via: str = "") -> None:
         """One agent's answer on its own topic (the common case, kept cheap)."""
         if step != self.step or not self.is_open or not 0 <= action <= 4 or self.received[agent]:
-            self.offer(step, np.array([agent]), np.array([action]), qos.agent_topic(agent, qos.AGENT_ACTION))
+            self.offer(step, np.array([agent]), np.array([action]), qos.agent_topic(agent, qos.AGENT_ACTION), via)
+            return
+        if self.gate is not None and not self.gate(via, np.array([agent]))[0]:
             return
         self.actions[agent] = action
         self.received[agent] = True
 
-    def offer(self, step: int, agent_ids: np.ndarray, actions: np.ndarray, source: str) -> None:
+    def offer(self, step: int, agent_ids: np.ndarray, actions: np.ndarray, source: str, via: str = "") -> None:
         """Take the valid entries of an answer for ``step``; reject and log the rest."""
         if len(agent_ids) != len(actions):
             self.reject("malformed", 1, f"{source}: {len(agent_ids)} agent ids but {len(actions)} actions")
@@ -104,6 +107,8 @@ class ActionInbox:
             self.reject("action out of range", int(bad.sum()),
                          f"{source}: actions {acts[bad][:8].tolist()} for agents {ids[bad][:8].tolist()} (valid 0-4)")
         ok = ~unknown & ~bad
+        if self.gate is not None and ok.any():
+            ok[ok] = self.gate(via, ids[ok])
         ids, acts = ids[ok], acts[ok]
         fresh = ~self.received[ids]
         self.duplicates += int((~fresh).sum())

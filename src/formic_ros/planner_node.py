@@ -19,6 +19,7 @@ from formic_runtime.registry import make_policy
 from formic_runtime.threads import configure_threads
 from formic_world import World
 
+from .ownership import Claim
 from . import convert, qos
 from .agent_host import WorldWatch
 
@@ -32,7 +33,8 @@ class PlannerNode(Node):
         super().__init__("planner", namespace=namespace)
         configure_threads()
         self.planner = make_policy("planner")
-        self.actions_pub = self.create_publisher(ActionBatch, qos.ACTIONS, qos.STREAM)
+        self.actions_pub = self.create_publisher(ActionBatch, f"~/{qos.ACTIONS}", qos.STREAM)
+        self.claim: Claim | None = None  # made when the team size is known
         self.create_subscription(ScenarioDescription, qos.SCENARIO, self._on_scenario, qos.LATCHED)
         self.create_subscription(ActionBatch, qos.APPLIED_ACTIONS, self._on_applied, qos.STREAM)
         self.create_subscription(WorldState, qos.STATE, self._on_state, qos.STREAM)
@@ -52,6 +54,8 @@ class PlannerNode(Node):
         self.scenario_json = msg.scenario_json
         self.world = World(scenario)
         self.planner.reset(scenario.config.n_agents, scenario.seed)
+        if self.claim is None:  # the planner drives the whole team
+            self.claim = Claim(self, range(scenario.config.n_agents), self.actions_pub.topic_name)
         self.digests, self.world_digests = {0: self.world.state_digest()}, {}
         self.finished = False
         self.get_logger().info(f"scenario seed {scenario.seed}: planning for {scenario.config.n_agents} agents")

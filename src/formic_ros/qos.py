@@ -28,6 +28,8 @@ AGENT_OBSERVATION = "observation"  # under the agent node: /formic/agent_K/obser
 AGENT_ACTION = "action"  # /formic/agent_K/action
 ROLLOUTS = "rollouts"  # learning hosts -> trainer
 WEIGHTS = "weights"  # trainer -> learning hosts
+CLAIMS = "claims"  # driver nodes -> world: the agents each drives (formic_ros.ownership)
+OWNERS = "owners"  # world -> driver nodes: who drives which agent
 
 NO_ACTION_WIRE = 255  # an applied action that did not arrive in time (ActionBatch.actions)
 
@@ -80,6 +82,8 @@ TOPICS: dict[str, Topic] = {
     AGENT_ACTION: Topic(_FORMIC + "AgentAction", STREAM),  # under agent_K/
     ROLLOUTS: Topic(_FORMIC + "Rollout", ROLLOUT),
     WEIGHTS: Topic(_FORMIC + "Weights", LATCHED),
+    CLAIMS: Topic("std_msgs/msg/String", LATCHED),
+    OWNERS: Topic("std_msgs/msg/String", LATCHED),
 }
 # The world's topics, which a recorder subscribes to at once (the rest it discovers).
 WORLD_TOPICS = (SCENARIO, SUMMARY, STATE, APPLIED_ACTIONS, OBSERVATIONS, ACTIONS, SCORE, MAP, AGENT_MARKERS, CLOCK)

@@ -9,11 +9,10 @@ discovering the graph do not start the episode behind.
 
 Observations go out batched on ``observations`` when that topic has a subscriber, and per agent
 on ``agent_K/observation`` only where that topic has one. Actions come in on ``actions``
-(batches, any subset of agents) and ``agent_K/action``; every action is validated, and a bad
-one is rejected with a (rate-limited) log line, never an exception.
-
+(batches, any subset of agents) and ``agent_K/action``; every action is validated and checked
+against its agent's owner (:mod:`formic_ros.ownership`); a bad one is rejected and counted.
 The lockstep bookkeeping (inbox, deadlines, re-sends, misses) is :mod:`formic_ros.lockstep`;
-training mode (episode after episode on training scenarios) :mod:`formic_ros.training_world`.
+training mode :mod:`formic_ros.training_world`.
 """
 
 from __future__ import annotations
@@ -39,13 +38,13 @@ from formic_world import Scenario, StepResult, World
 from .graph import recorders_present, wait_for_recorders
 from . import convert, qos, viewer_msgs
 from .lockstep import Lockstep, RateLimitedLog
+from .ownership import Ownership, batch_of
 from .wire import encoding_code, read
 
 LISTENER_REFRESH_S = 0.25  # how often the set of per-agent observation subscribers is re-read
 LINGER_S = 0.5  # the node stays up this long after the episode's last messages
 ACK_TIMEOUT_S = 3.5  # at the end, how long subscribers get to acknowledge the last messages
-# (acknowledgements follow Fast DDS's heartbeats, about every 3 s, so this is only waited
-# for when someone subscribes to the logged topics: a recorder, the planner, a viewer)
+# (acks follow Fast DDS's ~3 s heartbeats: waited for only with a recorder, planner or viewer)
 
 
 @dataclass(frozen=True)
@@ -88,12 +87,11 @@ class WorldNode(Node):
         self.markers_pub = pub(viewer_msgs.MarkerArray, qos.AGENT_MARKERS, qos.VIEWER)
         self.agent_obs_pubs = [pub(AgentObservation, qos.agent_topic(a, qos.AGENT_OBSERVATION), qos.STREAM)
                                for a in range(n)]
-        self.create_subscription(ActionBatch, qos.ACTIONS, self._on_action_batch, qos.STREAM)
-        for a in range(n):
-            self.create_subscription(AgentAction, qos.agent_topic(a, qos.AGENT_ACTION),
-                                     lambda msg, a=a: self._on_agent_action(a, msg), qos.STREAM)
-        self._listening: list[int] = []
-        self._listening_at = -np.inf
+        self.actions_sub = self.create_subscription(ActionBatch, qos.ACTIONS, self._on_action_batch, qos.STREAM)
+        self.action_topics = [self.create_subscription(AgentAction, qos.agent_topic(a, qos.AGENT_ACTION), lambda m, a=a:
+                              self._on_agent_action(a, m), qos.STREAM).topic_name for a in range(n)]
+        self.ownership = Ownership(self, lambda msg, topic: self.inbox.offer(*batch_of(msg), topic, topic))
+        self._listening, self._listening_at = [], -np.inf
         self.view = None  # the live view, fed after each step (formic_view; no ROS involved)
         if options.view_port is not None:
             from formic_view import LiveView, announcement
@@ -112,19 +110,21 @@ class WorldNode(Node):
         opts = self.options
         self.lockstep = Lockstep(n, self.log, self.get_logger(), opts.deadline_s, opts.startup_timeout_s, opts.rate_hz)
         self.inbox = self.lockstep.inbox
+        self.inbox.gate, self.ownership.rejected = self.ownership.allowed, self.inbox.rejected
         self.scenario_pub.publish(convert.encode_scenario(scenario, opts.policy_label))
 
     # ------------------------------------------------------------------ actions in
     def _on_action_batch(self, msg: ActionBatch) -> None:
         ids = read(msg.agent_ids, np.uint32)
-        self.inbox.offer(msg.step, ids, read(msg.actions, np.uint8), f"{qos.ACTIONS} ({len(ids)} agents)")
+        self.inbox.offer(msg.step, ids, read(msg.actions, np.uint8), f"{qos.ACTIONS} ({len(ids)} agents)",
+                         self.actions_sub.topic_name)
 
     def _on_agent_action(self, agent: int, msg: AgentAction) -> None:
         if msg.agent_id != agent:
             source = qos.agent_topic(agent, qos.AGENT_ACTION)
             self.inbox.reject("agent id mismatch", 1, f"{source}: message for agent {msg.agent_id}")
             return
-        self.inbox.offer_one(msg.step, agent, msg.action)
+        self.inbox.offer_one(msg.step, agent, msg.action, self.action_topics[agent])
 
     # ---------------------------------------------------------------- messages out
     def _listeners(self) -> list[int]:

@@ -1,0 +1,172 @@
+"""Who may drive an agent: each agent is bound to one owner, the node that claims it.
+
+A driver node (agent host, planner, learning host, a user's own agent node) publishes a latched
+claim on ``claims`` (``std_msgs/String``, JSON ``{"owner": fully qualified node name, "token":
+unique per claim, "agents": [...], "actions": its own batch topic or null}``); the world binds
+each unowned agent to the first claim and confirms the bindings on ``owners`` (latched JSON
+``{"owners": {agent: token}}``). A second claim for an owned agent is refused with an ERROR (the
+first owner is kept) unless the first owner's node has left the graph (a restarted host).
+
+Every action is checked against its agent's owner: batches count only on the owner's own topic,
+per-agent actions only on ``agent_K/action`` while the graph lists node ``agent_K`` of a
+per-agent owner as a publisher there (cached, re-read at most every ``GRAPH_REFRESH_S``).
+Anything else is rejected ("not owner", "unclaimed"), logged once per source and counted in
+the summary. rclpy tells no publisher apart on one topic, so this guards against mistakes and
+stray nodes, not against a node that deliberately publishes on an owner's topic.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+import uuid
+
+import numpy as np
+from formic_interfaces.msg import ActionBatch
+from std_msgs.msg import String
+
+from . import qos
+from .wire import read
+
+GRAPH_REFRESH_S = 0.1  # a per-agent topic's publishers are re-read at most this often
+RECHECK_S = 0.5  # refused claims are re-examined this often (has the first owner left?)
+
+
+class Claim:
+    """A driver node's claim: published (latched) at once; ``refused`` holds the agents the
+    world gave to someone else (logged as an ERROR; ``on_refused`` is told)."""
+
+    def __init__(self, node, agents, actions_topic: str | None = None, on_refused=None):
+        self.node, self.agents = node, sorted(int(a) for a in agents)
+        self.token = f"{node.get_fully_qualified_name()}#{os.getpid()}-{uuid.uuid4().hex[:8]}"
+        self.refused: list[int] = []
+        self.on_refused = on_refused
+        self.publisher = node.create_publisher(String, qos.CLAIMS, qos.LATCHED)
+        self.publisher.publish(String(data=json.dumps({"owner": node.get_fully_qualified_name(), "token": self.token,
+                                                       "agents": self.agents, "actions": actions_topic})))
+        node.create_subscription(String, qos.OWNERS, self._on_owners, qos.LATCHED)
+
+    def _on_owners(self, msg: String) -> None:
+        owners = json.loads(msg.data).get("owners", {})
+        refused = [a for a in self.agents if owners.get(str(a), self.token) != self.token]
+        if refused and refused != self.refused:
+            self.node.get_logger().error(f"agents {refused} are driven by another node "
+                                         f"({sorted({owners[str(a)] for a in refused})}); not driving them")
+        self.refused = refused
+        if self.on_refused is not None:
+            self.on_refused(refused)
+
+
+class Ownership:
+    """The world's side: claims in, owners out, and :meth:`allowed` (the inbox's gate)."""
+
+    def __init__(self, node, offer_batch):
+        self.node, self.offer_batch = node, offer_batch  # offer_batch(msg, topic): into the inbox
+        self.claims: dict[str, dict] = {}  # token -> claim
+        self.owner_of: dict[int, str] = {}  # agent -> token
+        self.refused: dict[str, dict] = {}  # token -> refused claim (re-examined)
+        self.batch_topics: dict[str, str] = {}  # the owners' own batch topics -> token
+        self.rejected = None  # the inbox's rejection counter (set by the world per episode)
+        self.told: set[tuple[str, str]] = set()  # (reason, source): logged once
+        self.graph: dict[str, tuple[float, set[str]]] = {}  # topic -> (read at, publisher node names)
+        self.namespace = node.get_namespace().rstrip("/")
+        node.create_subscription(String, qos.CLAIMS, self._on_claim, qos.reliable(1000, latched=True))
+        self.owners_pub = node.create_publisher(String, qos.OWNERS, qos.LATCHED)
+        node.create_timer(RECHECK_S, self._recheck)
+
+    # ------------------------------------------------------------------ claims
+    def _on_claim(self, msg: String) -> None:
+        try:
+            c = json.loads(msg.data)
+            claim = {"owner": str(c["owner"]), "token": str(c["token"]), "agents": [int(a) for a in c["agents"]],
+                     "actions": c.get("actions") and str(c["actions"])}
+        except (ValueError, KeyError, TypeError):
+            self._count("malformed", 1, f"{qos.CLAIMS}: {msg.data[:80]!r}", "malformed claim")
+            return
+        if claim["token"] in self.claims:
+            return
+        self.claims[claim["token"]] = claim
+        if claim["actions"] and claim["actions"] not in self.batch_topics:
+            topic = claim["actions"]
+            self.batch_topics[topic] = claim["token"]
+            self.node.create_subscription(ActionBatch, topic, lambda m, t=topic: self.offer_batch(m, t), qos.STREAM)
+        self._bind(claim)
+
+    def _alive(self, owner: str) -> int:
+        return sum(f"{ns.rstrip('/')}/{name}" == owner for name, ns in self.node.get_node_names_and_namespaces())
+
+    def _bind(self, claim: dict) -> None:
+        taken = []
+        for a in claim["agents"]:
+            first = self.claims.get(self.owner_of.get(a, ""))
+            if first is None or first["token"] == claim["token"]:
+                self.owner_of[a] = claim["token"]
+            elif self._alive(first["owner"]) > (first["owner"] == claim["owner"]):
+                taken.append(a)
+            else:  # the first owner has left the graph: a restarted host takes over
+                self.node.get_logger().info(f"agent {a}: {first['owner']} has left, {claim['owner']} drives it now")
+                self.owner_of[a] = claim["token"]
+        if taken:
+            if claim["token"] not in self.refused:
+                self.node.get_logger().error(
+                    f"{claim['owner']} claims agents {taken}, already driven by "
+                    f"{sorted({self.claims[self.owner_of[a]]['owner'] for a in taken})}: claim refused, first owner kept")
+            self.refused[claim["token"]] = claim
+        else:
+            self.refused.pop(claim["token"], None)
+        self.owners_pub.publish(String(data=json.dumps({"owners": {str(a): t for a, t in self.owner_of.items()}})))
+
+    def _recheck(self) -> None:
+        for claim in list(self.refused.values()):
+            if self._alive(claim["owner"]):
+                self._bind(claim)
+
+    # ------------------------------------------------------------------ actions
+    def _count(self, reason: str, count: int, source: str, what: str = "rejected action") -> None:
+        if self.rejected is not None and count:
+            self.rejected[reason] += count
+        key = (reason, source.split(" (")[0])
+        if key not in self.told:
+            self.told.add(key)
+            self.node.get_logger().warning(f"{what} ({reason}): {source} (logged once, counted in the summary)")
+
+    def _publishers(self, topic: str) -> set[str]:
+        read_at, names = self.graph.get(topic, (-np.inf, set()))
+        if time.monotonic() - read_at > GRAPH_REFRESH_S:
+            infos = self.node.get_publishers_info_by_topic(topic)
+            names = {f"{i.node_namespace.rstrip('/')}/{i.node_name}" for i in infos}
+            self.graph[topic] = (time.monotonic(), names)
+        return names
+
+    def _drives(self, claim: dict, agent: int, via: str) -> bool:
+        if claim["actions"]:
+            return via == claim["actions"]
+        topic = qos.full_name(self.namespace or "/", qos.agent_topic(agent, qos.AGENT_ACTION))
+        if via != topic:
+            return False
+        node = f"{self.namespace}/{qos.agent_node_name(agent)}"
+        names = self._publishers(topic)
+        if node not in names:
+            self.graph.pop(topic, None)  # perhaps not discovered yet: read again
+            names = self._publishers(topic)
+        for other in names - {node}:
+            self._count("foreign publisher", 0, f"{other} publishes on {topic} too (its messages cannot be "
+                        "told apart from the owner's)", "warning")
+        return node in names
+
+    def allowed(self, via: str, ids: np.ndarray) -> np.ndarray:
+        """Which of the agents ``ids`` (actions that arrived on topic ``via``) their owner sent."""
+        ok = np.ones(len(ids), dtype=bool)
+        for i, a in enumerate(ids.tolist()):
+            claim = self.claims.get(self.owner_of.get(a, ""))
+            if claim is not None and self._drives(claim, a, via):
+                continue
+            ok[i] = False
+            reason = "unclaimed" if claim is None else "not owner"
+            self._count(reason, 1, f"{via} (agent {a} and maybe more)")
+        return ok
+
+
+def batch_of(msg: ActionBatch) -> tuple[int, np.ndarray, np.ndarray]:
+    return msg.step, read(msg.agent_ids, np.uint32), read(msg.actions, np.uint8)
