@@ -4,8 +4,10 @@
 This is how a robot's policy node replaces a simulated agent: start the system with that agent
 left out (``formic run --external 2``), then run a node named ``agent_2`` in the ``/formic``
 namespace that answers every observation on ``/formic/agent_2/observation`` with an action on
-``/formic/agent_2/action`` carrying the same step. The world waits for it like for any other
-agent (and gives it NO_ACTION for a step it misses).
+``/formic/agent_2/action`` carrying the same step. It first claims its agent on
+``/formic/claims`` (latched); the world takes actions for an agent only from its owner and says
+who owns what on ``/formic/owners`` (a second node claiming agent 2 is refused and idles). The
+world waits for it like for any other agent (and gives it NO_ACTION for a step it misses).
 
     python examples/external_agent.py --agent 2
 
@@ -16,6 +18,7 @@ queue when that is possible, otherwise take a random valid move.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import random
 
@@ -35,6 +38,8 @@ def main() -> None:
     import rclpy
     from formic_interfaces.msg import AgentAction, AgentObservation
     from rclpy.node import Node
+    from rclpy.qos import DurabilityPolicy, QoSProfile
+    from std_msgs.msg import String
 
     class ExternalAgent(Node):
         def __init__(self) -> None:
@@ -46,8 +51,25 @@ def main() -> None:
             # are formic_ros.qos.AGENT_ACTION and AGENT_OBSERVATION (literal here: this example stands alone).
             self.publisher = self.create_publisher(AgentAction, "~/action", 10)
             self.create_subscription(AgentObservation, "~/observation", self.on_observation, 10)
+            # Claim the agent (latched: formic_ros.qos.LATCHED), then follow the world's verdict.
+            latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+            self.token = f"{self.get_fully_qualified_name()}#{os.getpid()}-{random.getrandbits(32):08x}"
+            claim = {"owner": self.get_fully_qualified_name(), "token": self.token, "agents": [args.agent]}
+            self.create_publisher(String, f"{args.namespace}/claims", latched).publish(String(data=json.dumps(claim)))
+            self.create_subscription(String, f"{args.namespace}/owners", self.on_owners, latched)
+            self.owned = False
+
+        def on_owners(self, msg: String) -> None:
+            owner = json.loads(msg.data)["owners"].get(str(args.agent))
+            refused = owner is not None and owner != self.token
+            if refused and (self.owned or not getattr(self, "told", False)):
+                self.told = True
+                self.get_logger().error(f"agent {args.agent} is driven by another node ({owner}); not driving it")
+            self.owned = owner == self.token
 
         def on_observation(self, obs: AgentObservation) -> None:
+            if not self.owned and not obs.done:
+                return
             if obs.done:
                 self.get_logger().info(f"episode over at step {obs.step}")
                 self.done = True

@@ -28,6 +28,7 @@ from formic_agent.policy import AgentBatch  # noqa: E402
 from formic_runtime.team import Team, parse_ids  # noqa: E402
 from formic_ros import convert, wire  # noqa: E402
 from formic_ros.lockstep import ActionInbox, RateLimitedLog  # noqa: E402
+from formic_ros.ownership import Claim  # noqa: E402
 from formic_world import NO_ACTION, World, WorldConfig, generate_scenario  # noqa: E402
 
 pytestmark = pytest.mark.filterwarnings("ignore:module 'sre_:DeprecationWarning")
@@ -54,6 +55,7 @@ def agent_node_in_this_process(spawner, monkeypatch, agent: int):
     rclpy.init(context=context, domain_id=spawner.domain_id)
     executor = EventsExecutor(context=context)
     node = rclpy.create_node(f"agent_{agent}", namespace="/formic", context=context)
+    node.claim = Claim(node, [agent])  # the world takes an agent's actions only from its owner
     executor.add_node(node)
     try:
         yield node, executor
