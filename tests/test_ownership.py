@@ -65,13 +65,15 @@ def test_a_spoofing_node_changes_nothing(tmp_path):
 def test_two_nodes_claiming_one_agent(tmp_path):
     spawner = Spawner(tmp_path, fresh_domain_id())
     try:
-        run = spawner.formic("run", "run", "--agents", "8", "--size", "24", "--seed", "0", "--steps", "40",
-                             "--policy", "random", "--external", "2", "--deadline-ms", "5000", "--json",
-                             "--domain-id", str(spawner.domain_id), limit_s=120)
         example = str(ROOT / "examples" / "external_agent.py")
         first = spawner.python("first", example, "--agent", "2", "--domain-id", str(spawner.domain_id), limit_s=120)
         second = spawner.python("second", example, "--agent", "2", "--domain-id", str(spawner.domain_id),
                                 limit_s=120)
+        for node in (first, second):  # both claims are out (latched) before the world starts
+            node.wait_for_text("driving agent 2", timeout=60)
+        run = spawner.formic("run", "run", "--agents", "8", "--size", "24", "--seed", "0", "--steps", "40",
+                             "--policy", "random", "--external", "2", "--deadline-ms", "5000", "--json",
+                             "--domain-id", str(spawner.domain_id), limit_s=120)
         assert run.wait() == 0, run.output()[-3000:]
         time.sleep(1)  # the refused one idles (it may miss the end): reaped below
         summary = run.json_line()
