@@ -62,6 +62,7 @@ WORLD_TOPIC = "/formic/world"
 AGENTS_TOPIC = "/formic/agent_markers"
 SCORE_TOPIC = "/formic/score"
 STATE_TOPIC = "/formic/state"
+CLOSE_FLUSH_S = 0.5  # how long close() lets the last messages reach connected viewers
 
 # One grid cell: the rendered colour (as `formic render` draws it), then the raw layers.
 CELL = np.dtype([("red", "u1"), ("green", "u1"), ("blue", "u1"), ("alpha", "u1"),
@@ -168,6 +169,10 @@ class LiveView:
         return sent
 
     def close(self) -> None:
+        """Stop serving, after a moment for the last (final) messages to reach connected
+        viewers: the server sends from its own thread, and stopping at once can drop them."""
+        if self.published:
+            time.sleep(CLOSE_FLUSH_S)
         self.server.stop()
 
     def __enter__(self) -> LiveView:
