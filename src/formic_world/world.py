@@ -132,6 +132,7 @@ class World:
         kernels.refresh_entries(self.entry_owner, self.queue_cells, self.queue_count, self.queue_head, qlen)
         self.pheromone = np.zeros((height, width), dtype=np.float64)
         self.highways = highway_map(self) if cfg.highway_intensity > 0 else np.zeros((height, width))
+        self.resource_collect_reward = self.collect_reward()
         self.score_ticks = 0
         self.t = 0
         self.rewards = np.zeros(n, dtype=np.float64)
@@ -193,7 +194,7 @@ class World:
             self.agent_at, self.pos, self.load, self.queue_of, self.spot_of, self.intensity,
             self.queue_cells, self.queue_is_cache, self.queue_resource, self.queue_members,
             self.queue_count, self.queue_head, self.resource_remaining, self.gather_ticks,
-            self.dropoff_ticks, self.load_full, self.rewards, self.collect_reward(), r.deposit, depleted,
+            self.dropoff_ticks, self.load_full, self.rewards, self.resource_collect_reward, r.deposit, depleted,
             cfg.gather_holds, cfg.dropoff_holds, cfg.serve_after_move_up,
         )
         for q in np.flatnonzero(depleted):
@@ -240,13 +241,15 @@ class World:
             self.resource_capacity[res] = capacity
             self.resource_remaining[res] = capacity
             self.queue_cells[q] = cells
+            self.resource_collect_reward = self.collect_reward()
             self.observer.grid_changed()
             return
         raise RuntimeError("no room to respawn a resource")
 
     def collect_reward(self) -> np.ndarray:
         """Each resource's collection reward: flat (the paper), or falling with the resource's
-        distance to the nest centre (``RewardConfig.collect_distance_decay``, the reference)."""
+        distance to the nest centre (``RewardConfig.collect_distance_decay``, the reference).
+        Kept in ``resource_collect_reward``, recomputed when a resource moves (reset, respawn)."""
         r = self.config.rewards
         if r.collect_distance_decay == 0.0:
             return np.full(len(self.resource_pos), r.collect)
