@@ -103,7 +103,8 @@ class AgentHost:
                 self.action_pubs[a] = node.create_publisher(AgentAction, f"~/{qos.AGENT_ACTION}", qos.STREAM)
                 self.nodes.append(node)
         batched = self.actions_pub.topic_name if transport == "batched" else None
-        self.claim = Claim(self.control, self.ids.tolist(), batched)  # the world checks who drives an agent
+        publishers = [self.actions_pub] if batched else list(self.action_pubs.values())
+        self.claim = Claim(self.control, self.ids.tolist(), batched, publishers=publishers)  # the world checks it
         self.scenario_json = ""
         self.n_agents = 0
         self.expected = 0  # this host's agents that are in the team
@@ -150,8 +151,8 @@ class AgentHost:
     def _ready(self, step: int, done: bool) -> bool:
         """Whether an observation of ``step`` should be answered (handles episode ends and a
         world that starts the same scenario again)."""
-        if not self.scenario_json:
-            return False  # the latched scenario has not arrived yet: the world re-sends
+        if not self.scenario_json or not self.claim.ready():
+            return False  # the scenario, the world's confirmation or the recorders missing: the world re-sends
         if done:
             self.finished = True
             return False

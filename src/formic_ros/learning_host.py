@@ -141,7 +141,7 @@ class LearningHost:
         node.create_subscription(ObservationBatch, qos.OBSERVATIONS, self._on_batch, qos.STREAM)
         node.create_subscription(Weights, qos.WEIGHTS, self._on_weights, qos.LATCHED)
         self.actions_pub = node.create_publisher(ActionBatch, f"~/{qos.ACTIONS}", qos.STREAM)
-        self.claim = Claim(node, list(self.ids), self.actions_pub.topic_name)
+        self.claim = Claim(node, list(self.ids), self.actions_pub.topic_name, publishers=[self.actions_pub])
         self.rollouts_pub = node.create_publisher(Rollout, qos.ROLLOUTS, qos.ROLLOUT)
         self.played = ""  # scenario of the episode being (or last) played
         self.next_scenario = ""  # a scenario not played yet
@@ -172,6 +172,8 @@ class LearningHost:
             self.pump()
 
     def _on_batch(self, msg: ObservationBatch) -> None:
+        if not self.claim.ready():
+            return  # the world re-sends step 0 until every agent is heard
         self.held = msg
         self.pump()
 

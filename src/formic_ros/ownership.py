@@ -5,7 +5,13 @@ claim on ``claims`` (``std_msgs/String``, JSON ``{"owner": fully qualified node 
 unique per claim, "agents": [...], "actions": its own batch topic or null}``); the world binds
 each unowned agent to the first claim and confirms the bindings on ``owners`` (latched JSON
 ``{"owners": {agent: token}}``). A second claim for an owned agent is refused with an ERROR (the
-first owner is kept) unless the first owner's node has left the graph (a restarted host).
+first owner is kept) unless the first owner's node has left the graph (a restarted host) and
+its claim is older than ``TAKEOVER_GRACE_S`` (a node's claim can arrive before the node itself
+shows in the graph).
+
+A driver answers only once its claim is ready (:meth:`Claim.ready`): the world has confirmed it,
+and the recorders the world waits for (``owners`` says how many) have matched the driver's action
+topics, so a recording holds every action from step 0 on and no action is rejected as unclaimed.
 
 Every action is checked against its agent's owner: batches count only on the owner's own topic,
 per-agent actions only on ``agent_K/action`` while the graph lists node ``agent_K`` of a
@@ -27,28 +33,41 @@ from formic_interfaces.msg import ActionBatch
 from std_msgs.msg import String
 
 from . import qos
+from .graph import recorders_matched
 from .wire import read
 
 GRAPH_REFRESH_S = 0.1  # a per-agent topic's publishers are re-read at most this often
 RECHECK_S = 0.5  # refused claims are re-examined this often (has the first owner left?)
+TAKEOVER_GRACE_S = 2.0  # a claim this young is never taken over: its node may not be in the graph yet
+READY_CHECK_S = 0.05  # a driver re-reads the graph at most this often while it waits for recorders
+RECORDER_WAIT_S = 10.0  # a driver answers anyway this long after the confirmation (warned)
 
 
 class Claim:
     """A driver node's claim: published (latched) at once; ``refused`` holds the agents the
-    world gave to someone else (logged as an ERROR; ``on_refused`` is told)."""
+    world gave to someone else (logged as an ERROR; ``on_refused`` is told). ``publishers``:
+    the driver's action publishers, which the recorders must match before :meth:`ready`."""
 
-    def __init__(self, node, agents, actions_topic: str | None = None, on_refused=None):
+    def __init__(self, node, agents, actions_topic: str | None = None, on_refused=None, publishers=()):
         self.node, self.agents = node, sorted(int(a) for a in agents)
         self.token = f"{node.get_fully_qualified_name()}#{os.getpid()}-{uuid.uuid4().hex[:8]}"
         self.refused: list[int] = []
         self.on_refused = on_refused
+        self.publishers = list(publishers)
+        self.confirmed_at: float | None = None  # when the world first bound an agent to this claim
+        self.recorders = 0  # how many recorders the world waits for (from ``owners``)
+        self._ready, self._checked_at = False, -np.inf
         self.publisher = node.create_publisher(String, qos.CLAIMS, qos.LATCHED)
         self.publisher.publish(String(data=json.dumps({"owner": node.get_fully_qualified_name(), "token": self.token,
                                                        "agents": self.agents, "actions": actions_topic})))
         node.create_subscription(String, qos.OWNERS, self._on_owners, qos.LATCHED)
 
     def _on_owners(self, msg: String) -> None:
-        owners = json.loads(msg.data).get("owners", {})
+        owners_msg = json.loads(msg.data)
+        owners = owners_msg.get("owners", {})
+        self.recorders = int(owners_msg.get("recorders", 0))
+        if self.confirmed_at is None and self.token in owners.values():
+            self.confirmed_at = time.monotonic()
         refused = [a for a in self.agents if owners.get(str(a), self.token) != self.token]
         if refused and refused != self.refused:
             self.node.get_logger().error(f"agents {refused} are driven by another node "
@@ -56,6 +75,21 @@ class Claim:
         self.refused = refused
         if self.on_refused is not None:
             self.on_refused(refused)
+
+    def ready(self) -> bool:
+        """Whether the driver may answer: the world confirmed the claim, and the world and the
+        recorders it waits for have matched every action publisher (after ``RECORDER_WAIT_S`` it answers anyway, warned)."""
+        now = time.monotonic()
+        if self._ready or self.confirmed_at is None or now - self._checked_at < READY_CHECK_S:
+            return self._ready
+        self._checked_at = now
+        self._ready = (all(p.get_subscription_count() for p in self.publishers)  # the world hears us
+                       and recorders_matched(self.node, self.publishers, self.recorders))
+        if not self._ready and now - self.confirmed_at > RECORDER_WAIT_S:
+            self.node.get_logger().warning(f"the recorder has not matched this node's action topics after "
+                                           f"{RECORDER_WAIT_S:g} s: answering anyway (the recording misses them)")
+            self._ready = True
+        return self._ready
 
 
 class Ownership:
@@ -68,6 +102,7 @@ class Ownership:
         self.refused: dict[str, dict] = {}  # token -> refused claim (re-examined)
         self.batch_topics: dict[str, str] = {}  # the owners' own batch topics -> token
         self.rejected = None  # the inbox's rejection counter (set by the world per episode)
+        self.recorders = 0  # recorders the world waits for: drivers wait for them too
         self.told: set[tuple[str, str]] = set()  # (reason, source): logged once
         self.graph: dict[str, tuple[float, set[str]]] = {}  # topic -> (read at, publisher node names)
         self.namespace = node.get_namespace().rstrip("/")
@@ -86,6 +121,7 @@ class Ownership:
             return
         if claim["token"] in self.claims:
             return
+        claim["received_at"] = time.monotonic()
         self.claims[claim["token"]] = claim
         if claim["actions"] and claim["actions"] not in self.batch_topics:
             topic = claim["actions"]
@@ -102,7 +138,8 @@ class Ownership:
             first = self.claims.get(self.owner_of.get(a, ""))
             if first is None or first["token"] == claim["token"]:
                 self.owner_of[a] = claim["token"]
-            elif self._alive(first["owner"]) > (first["owner"] == claim["owner"]):
+            elif (self._alive(first["owner"]) > (first["owner"] == claim["owner"])
+                  or time.monotonic() - first["received_at"] < TAKEOVER_GRACE_S):  # or not discovered yet
                 taken.append(a)
             else:  # the first owner has left the graph: a restarted host takes over
                 self.node.get_logger().info(f"agent {a}: {first['owner']} has left, {claim['owner']} drives it now")
@@ -115,7 +152,17 @@ class Ownership:
             self.refused[claim["token"]] = claim
         else:
             self.refused.pop(claim["token"], None)
-        self.owners_pub.publish(String(data=json.dumps({"owners": {str(a): t for a, t in self.owner_of.items()}})))
+        self._publish_owners()
+
+    def expect_recorders(self, count: int) -> None:
+        """Tell the drivers how many recorders must match their action topics before they answer."""
+        if count != self.recorders:
+            self.recorders = count
+            self._publish_owners()
+
+    def _publish_owners(self) -> None:
+        owners = {str(a): t for a, t in self.owner_of.items()}
+        self.owners_pub.publish(String(data=json.dumps({"owners": owners, "recorders": self.recorders})))
 
     def _recheck(self) -> None:
         for claim in list(self.refused.values()):

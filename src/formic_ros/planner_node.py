@@ -55,7 +55,8 @@ class PlannerNode(Node):
         self.world = World(scenario)
         self.planner.reset(scenario.config.n_agents, scenario.seed)
         if self.claim is None:  # the planner drives the whole team
-            self.claim = Claim(self, range(scenario.config.n_agents), self.actions_pub.topic_name)
+            self.claim = Claim(self, range(scenario.config.n_agents), self.actions_pub.topic_name,
+                               publishers=[self.actions_pub])
         self.digests, self.world_digests = {0: self.world.state_digest()}, {}
         self.finished = False
         self.get_logger().info(f"scenario seed {scenario.seed}: planning for {scenario.config.n_agents} agents")
@@ -100,7 +101,7 @@ class PlannerNode(Node):
     def tick(self) -> None:
         """Publish the pending actions once the world listens; re-send when it stays silent."""
         now = time.monotonic()
-        if self.pending is None or now - self.sent_at < RESEND_S or self.actions_pub.get_subscription_count() == 0:
+        if self.pending is None or now - self.sent_at < RESEND_S or not self.claim.ready():
             return
         self.actions_pub.publish(self.pending)
         self.sent_at = now

@@ -177,6 +177,7 @@ class WorldNode(Node):
         publishers = {qos.STATE: self.state_pub, qos.APPLIED_ACTIONS: self.applied_pub,
                       qos.OBSERVATIONS: self.observations_pub, qos.SUMMARY: self.summary_pub,
                       qos.SCENARIO: self.scenario_pub, qos.SCORE: self.score_pub}
+        self.ownership.expect_recorders(max(self.options.recorders, recorders_present(self)))  # drivers wait too
         deadline = time.monotonic() + self.options.startup_timeout_s
         while missing := [n for n in self.options.require_subscribers if publishers[n].get_subscription_count() == 0]:
             if time.monotonic() > deadline:
@@ -185,6 +186,7 @@ class WorldNode(Node):
                 return
             executor.spin_once(timeout_sec=0.05)
         expected = max(self.options.recorders, recorders_present(self))  # told about, or present at start
+        self.ownership.expect_recorders(expected)
         publishers = [self.scenario_pub, self.summary_pub, self.state_pub, self.applied_pub, self.observations_pub,
                       self.score_pub, self.clock_pub, self.map_pub, self.markers_pub, *self.agent_obs_pubs]
         if expected and not wait_for_recorders(self, executor, publishers, expected, self.options.startup_timeout_s):
