@@ -47,10 +47,11 @@ def main() -> None:
             self.rng = random.Random(args.seed)
             self.done = False
             self.last: AgentAction | None = None
-            # Reliable, depth 10: the QoS of the world's per-agent topics (formic_ros.qos.STREAM); the names
-            # are formic_ros.qos.AGENT_ACTION and AGENT_OBSERVATION (literal here: this example stands alone).
+            # Reliable: the QoS of the world's per-agent topics (formic_ros.qos.STREAM). Observations with depth 1
+            # (formic_ros.qos.LATEST): a node slower than the world answers the newest step, never a backlog.
+            # The names are formic_ros.qos.AGENT_ACTION and AGENT_OBSERVATION (literal: this example stands alone).
             self.publisher = self.create_publisher(AgentAction, "~/action", 10)
-            self.create_subscription(AgentObservation, "~/observation", self.on_observation, 10)
+            self.create_subscription(AgentObservation, "~/observation", self.on_observation, 1)
             # Claim the agent (latched: formic_ros.qos.LATCHED), then follow the world's verdict.
             latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
             self.token = f"{self.get_fully_qualified_name()}#{os.getpid()}-{random.getrandbits(32):08x}"

@@ -13,6 +13,7 @@ import time
 from pathlib import Path
 
 from formic_ros.env import ros_environment
+from formic_ros.processes import remove_stale_shm
 
 ROOT = Path(__file__).resolve().parents[1]
 _domains = random.Random(os.getpid() ^ int(time.time()))
@@ -113,6 +114,7 @@ class Spawner:
     def reap_all(self) -> None:
         for proc in self.procs:
             proc.kill()
+        remove_stale_shm()  # the shared memory of processes killed here (once old enough)
 
 
 def descendants(pid: int) -> set[int]:

@@ -124,6 +124,8 @@ def run(policy, model, greedy, scenario_file, hosts, transport, external, record
               help="Do not step before this many recorders (`formic record`) have matched every topic; "
                    "recorders already running when the world starts are waited for anyway.")
 @click.option("--stay", is_flag=True, help="Keep serving the latched scenario and summary after the episode.")
+@click.option("--allow-empty", is_flag=True,
+              help="Step through the episode even when no agent answers step 0 (default: exit with an error).")
 @click.option("--train-config", type=click.Path(exists=True, dir_okay=False),
               help="Training mode: play --episodes episodes on scenarios drawn as `formic train` draws them "
                    "for this training configuration (a run directory's config.json); world options are ignored.")
@@ -134,9 +136,10 @@ def run(policy, model, greedy, scenario_file, hosts, transport, external, record
 @view_options(wait=False)
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as one JSON line.")
 def world(scenario_file, policy_label, namespace, domain_id, deadline_ms, startup_timeout, rate, viewer_every,
-          dt, training_masks, observation_encoding, require, recorders, stay, train_config, episodes, first_episode, progress,
-          live_view, view_port, as_json, **world_kw) -> None:
+          dt, training_masks, observation_encoding, require, recorders, stay, allow_empty, train_config, episodes,
+          first_episode, progress, live_view, view_port, as_json, **world_kw) -> None:
     """The world node: owns the simulation and steps it with the agents over ROS."""
+    from formic_ros.lockstep import RunError
     from formic_ros.training_world import require_one_world, serve_training_world
     from formic_ros.world_node import WorldNodeOptions, serve_world
 
@@ -144,7 +147,7 @@ def world(scenario_file, policy_label, namespace, domain_id, deadline_ms, startu
         namespace=namespace, deadline_s=deadline_ms / 1e3, startup_timeout_s=startup_timeout, rate_hz=rate,
         viewer_every=viewer_every, dt=dt, policy_label=policy_label, training_masks=training_masks,
         observation_encoding=observation_encoding,
-        require_subscribers=tuple(require), recorders=recorders, progress=progress,
+        require_subscribers=tuple(require), recorders=recorders, progress=progress, allow_empty=allow_empty,
         view_port=view_port if live_view else None,
     )
     if train_config:
@@ -164,6 +167,8 @@ def world(scenario_file, policy_label, namespace, domain_id, deadline_ms, startu
                         on_summary=emit_json if as_json else _print_ros_summary, stay=stay)
     except KeyboardInterrupt:
         sys.exit(130)
+    except RunError as exc:
+        raise click.ClickException(str(exc)) from exc
 
 
 def _print_training_episode(summary: dict) -> None:
@@ -199,6 +204,7 @@ def agents(ids, policy, model, greedy, transport, namespace, domain_id, name, th
            switch_weights, episodes, first_episode) -> None:
     """An agent host: many agents (each its own node by default) in one process."""
     from formic_ros.agent_host import serve_agents
+    from formic_ros.lockstep import WorldLost
     from formic_runtime.team import parse_ids
 
     try:
@@ -215,7 +221,7 @@ def agents(ids, policy, model, greedy, transport, namespace, domain_id, name, th
             return
         serve_agents(agent_ids, policy, model=model, greedy=greedy, transport=transport, namespace=namespace,
                      name=name, once=once, domain_id=domain_id, torch_threads=threads)
-    except (ValueError, FileNotFoundError) as exc:
+    except (ValueError, FileNotFoundError, WorldLost) as exc:
         raise click.ClickException(str(exc)) from exc
     except KeyboardInterrupt:
         sys.exit(130)
@@ -283,12 +289,15 @@ def train_ros(preset, train_config, overrides, run_dir, episodes, fresh, switch_
 @click.option("--once", is_flag=True, help="Exit when the episode ends.")
 def planner(namespace, domain_id, once) -> None:
     """The centralized planner node: reads the full state, commands every agent."""
+    from formic_ros.lockstep import WorldLost
     from formic_ros.planner_node import serve_planner
 
     try:
         mismatches = serve_planner(namespace, once=once, domain_id=domain_id)
     except KeyboardInterrupt:
         sys.exit(130)
+    except WorldLost as exc:
+        raise click.ClickException(str(exc)) from exc
     if mismatches:
         raise click.ClickException(f"the planner's replica differed from the world {mismatches} time(s)")
 

@@ -5,7 +5,11 @@ with ``agent_K/observation`` in and ``agent_K/action`` out, all nodes in one eve
 (ROS composition). That is what ``ros2 node list`` shows and what a robot's own node replaces.
 Batched transport: one node holds the ``observations``/``actions`` pair and answers for its
 agents in one message. Either way the host acts once per step for all its agents (a learned
-policy runs one batch), only when it has every one of its agents' observations for that step.
+policy runs one batch) as soon as it has every one of its agents' observations for that step;
+per-agent, an observation lost on a lossy link does not stall the others: ``PARTIAL_WAIT_S``
+after the step's first observation the host acts for those that arrived, and answers a late one
+on its own when it comes (policies draw their randomness per agent and step, so the actions are
+the same either way).
 
 Policies reset from the latched scenario (seed, team size); a restarted host therefore starts
 with fresh memory and answers from whatever step the world is at. Observations of a step the
@@ -38,10 +42,12 @@ from formic_runtime.team import Team, format_ids
 from formic_runtime.threads import configure_threads
 from formic_world import Scenario
 
+from .lockstep import WorldLost
 from .ownership import Claim
 from . import convert, qos
 
 TRANSPORTS = ("per-agent", "batched")
+PARTIAL_WAIT_S = 0.1  # per-agent: act for the agents heard this long after a step's first observation
 
 
 def read_scenario(msg: ScenarioDescription, log) -> Scenario | None:
@@ -99,25 +105,28 @@ class AgentHost:
             for a in self.ids.tolist():
                 node = lean_node(qos.agent_node_name(a), namespace)
                 node.create_subscription(AgentObservation, f"~/{qos.AGENT_OBSERVATION}",
-                                         lambda msg, a=a: self._on_agent_observation(a, msg), qos.STREAM)
+                                         lambda msg, a=a: self._on_agent_observation(a, msg), qos.LATEST)
                 self.action_pubs[a] = node.create_publisher(AgentAction, f"~/{qos.AGENT_ACTION}", qos.STREAM)
                 self.nodes.append(node)
+            self.control.create_timer(PARTIAL_WAIT_S / 4, self._answer_late_step)
         batched = self.actions_pub.topic_name if transport == "batched" else None
         publishers = [self.actions_pub] if batched else list(self.action_pubs.values())
         self.claim = Claim(self.control, self.ids.tolist(), batched, publishers=publishers)  # the world checks it
         self.scenario_json = ""
-        self.n_agents = 0
+        self.n_agents = self.horizon = 0
         self.expected = 0  # this host's agents that are in the team
         self.seed = 0
         self.wipeout_starts: frozenset[int] = frozenset()
         self.episodes = 0
         self.finished = False  # the current episode has ended (a done observation arrived)
         self._reset_steps()
+        self.log.info(f"up: agents {format_ids(self.ids.tolist())} ({transport}), waiting for a world in {namespace}")
 
     # ---------------------------------------------------------------------- episode
     def _reset_steps(self) -> None:
         self.collecting = -1  # step whose per-agent observations are being gathered
         self.gathered: dict[int, AgentObservation] = {}
+        self.gathering_since = 0.0  # when the first of them arrived
         self.answered_step = -1
         self.answer_ids = np.zeros(0, dtype=np.int64)
         self.answer = np.zeros(0, dtype=np.int64)
@@ -134,6 +143,7 @@ class AgentHost:
             return
         self.scenario_json = msg.scenario_json
         self.n_agents = scenario.config.n_agents
+        self.horizon = scenario.config.episode_steps
         self.seed = scenario.seed
         self.wipeout_starts = frozenset(scenario.wipeout_starts)
         outside = self.ids[self.ids >= self.n_agents]
@@ -165,15 +175,28 @@ class AgentHost:
         if msg.agent_id != agent or not self._ready(msg.step, msg.done):
             return
         if msg.step == self.answered_step:
-            self._resend(agent)
+            if agent in self.answer_ids:
+                self._resend(agent)
+            else:  # late: the others were answered without it
+                self._answer(convert.decode_agent_observations([msg]))
             return
         if msg.step < max(self.collecting, self.answered_step):
             return
         if msg.step > self.collecting:
-            self.collecting, self.gathered = msg.step, {}
+            self.collecting, self.gathered, self.gathering_since = msg.step, {}, time.monotonic()
         self.gathered[agent] = msg
         if len(self.gathered) == self.expected:
-            self._answer(convert.decode_agent_observations([self.gathered[a] for a in sorted(self.gathered)]))
+            self._answer_gathered()
+
+    def _answer_gathered(self) -> None:
+        self._answer(convert.decode_agent_observations([self.gathered[a] for a in sorted(self.gathered)]))
+
+    def _answer_late_step(self) -> None:
+        """Timer: act for the agents heard when the rest of the step is late (a lost message)."""
+        if self.gathered and time.monotonic() - self.gathering_since >= PARTIAL_WAIT_S:
+            self.log.warning(f"step {self.collecting}: acting for {len(self.gathered)} of {self.expected} agents; "
+                             "the others' observations are late", throttle_duration_sec=5.0)
+            self._answer_gathered()
 
     def _on_batch(self, msg: ObservationBatch) -> None:
         if not self._ready(msg.step, msg.done) or msg.step < self.answered_step:
@@ -196,7 +219,11 @@ class AgentHost:
             self.team.wipe()
             self.wiped_at = step
         actions = self.team.act(batch)
-        self.answered_step, self.answer_ids, self.answer = step, batch.agent_ids, actions
+        if step == self.answered_step:  # a late agent of a step answered in part
+            self.answer_ids = np.concatenate([self.answer_ids, batch.agent_ids])
+            self.answer = np.concatenate([self.answer, actions])
+        else:
+            self.answered_step, self.answer_ids, self.answer = step, batch.agent_ids, actions
         self.collecting, self.gathered = -1, {}
         if self.transport == "batched":
             self.actions_pub.publish(convert.encode_actions(step, batch.agent_ids, actions))
@@ -240,8 +267,13 @@ def serve_agents(agent_ids: list[int], spec: str, once: bool = False, domain_id:
             executor.add_node(node)
         watch = WorldWatch(host.control)
         try:
-            while not (once and (host.finished or watch.gone(host.scenario_json))):
+            while not (once and host.finished):
                 executor.spin_once(timeout_sec=0.2)
+                if once and not host.finished and watch.gone(host.scenario_json):
+                    if host.answered_step + 1 >= host.horizon:
+                        break  # it ended: only the final (done) observation was lost
+                    raise WorldLost(f"the world left at step {host.answered_step + 1} of {host.horizon}, "
+                                    "before the episode ended")
         except KeyboardInterrupt:
             pass
         return host.episodes

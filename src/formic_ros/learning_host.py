@@ -27,6 +27,7 @@ from .ownership import Claim
 from . import convert, qos
 from .wire import read
 from .agent_host import WorldWatch, read_scenario
+from .lockstep import WorldLost
 from .trainer_node import apply_weights
 
 
@@ -146,6 +147,7 @@ class LearningHost:
         self.played = ""  # scenario of the episode being (or last) played
         self.next_scenario = ""  # a scenario not played yet
         self.scenario_json = ""  # the newest scenario seen (for WorldWatch)
+        self.horizon = 0  # its episode's steps
         self.playing = False
         self.episodes = 0  # episodes finished
         self.episode_rollouts = 0  # rollouts sent in the current episode
@@ -162,6 +164,7 @@ class LearningHost:
         if msg.scenario_json in (self.scenario_json, self.played) or (scenario := read_scenario(msg, self.log)) is None:
             return
         self.scenario_json = self.next_scenario = msg.scenario_json
+        self.horizon = scenario.config.episode_steps
         if (self.ids >= scenario.config.n_agents).any():
             self.log.error(f"agents {self.ids.tolist()} are not all in this team of {scenario.config.n_agents}")
         self.pump()
@@ -286,9 +289,14 @@ def serve_learning_agents(
             executor.add_node(node)
         watch = WorldWatch(host.control)
         try:
-            while not (episodes is not None and (host.episodes >= episodes or watch.gone(host.scenario_json))):
+            while not (episodes is not None and host.episodes >= episodes):
                 executor.spin_once(timeout_sec=0.2)
                 host.pump()  # also says so when the weights are late
+                if episodes is not None and watch.gone(host.scenario_json):
+                    if host.playing and host.answered_step + 1 < host.horizon:
+                        raise WorldLost(f"the world left at step {host.answered_step + 1} of {host.horizon}, "
+                                        "before the episode ended")
+                    break  # between episodes, or only the final observation was lost
             host.rollouts_pub.wait_for_all_acked(Duration(seconds=5.0))
         except KeyboardInterrupt:
             pass

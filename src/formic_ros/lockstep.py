@@ -19,6 +19,18 @@ RESEND_S = 0.5  # step-0 observations are re-sent this often until every agent h
 STEP_RESEND_S = 0.25  # later steps: re-sent to the agents that have not answered after this long
 
 
+class RunError(RuntimeError):
+    """A run that cannot go on as asked: the node command says so and exits non-zero."""
+
+
+class NobodyJoined(RunError):
+    """No agent answered step 0 within the start-up timeout (and running empty was not asked for)."""
+
+
+class WorldLost(RunError):
+    """The world left the graph before the episode a ``--once`` process plays had ended."""
+
+
 class RateLimitedLog:
     """Warnings grouped by reason, at most one line per reason per period, with a count of
     the ones held back (a flood of bad actions must not flood the log or slow the world)."""
@@ -121,8 +133,8 @@ class Lockstep:
     every agent answered or the deadline passes, calling ``resend`` meanwhile) and the misses."""
 
     def __init__(self, n_agents: int, log: RateLimitedLog, logger, deadline_s: float, startup_timeout_s: float,
-                 rate_hz: float | None):
-        self.log, self.logger = log, logger
+                 rate_hz: float | None, allow_empty: bool = False):
+        self.log, self.logger, self.allow_empty = log, logger, allow_empty
         self.deadline_s, self.startup_timeout_s, self.rate_hz = deadline_s, startup_timeout_s, rate_hz
         self.inbox = ActionInbox(n_agents, log)
         self.missed = np.zeros(n_agents, dtype=np.int64)
@@ -150,6 +162,10 @@ class Lockstep:
         if self.inbox.step == 0:
             self.collect(executor, now + self.startup_timeout_s, need_all=True, resend=resend)
             absent = int((~self.inbox.received).sum())
+            if absent == len(self.inbox.received) and not self.allow_empty:
+                raise NobodyJoined(f"no agent answered step 0 within {self.startup_timeout_s:g} s: no agent host or "
+                                   "agent node joined (check --domain-id, --namespace and ROS_AUTOMATIC_DISCOVERY_RANGE; "
+                                   "--allow-empty runs the world without agents)")
             self.logger.info(
                 f"stepping: every agent answered step 0 after {time.monotonic() - started:.1f} s" if not absent else
                 f"stepping: {absent} agents did not answer step 0 within {self.startup_timeout_s:g} s"

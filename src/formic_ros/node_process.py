@@ -96,10 +96,15 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="python -m formic_ros.node_process", description=__doc__.split("\n")[0])
     parser.add_argument("--options", required=True, help="The node's options (JSON), as the launcher writes them.")
     spec = json.loads(Path(parser.parse_args(argv).options).read_text())
+    from .lockstep import RunError
+
     try:
         sys.exit(NODES[spec["node"]](**spec["kwargs"]) or 0)
     except KeyboardInterrupt:
         sys.exit(130)
+    except RunError as exc:
+        log(f"error: {exc}")
+        sys.exit(1)
 
 
 if __name__ == "__main__":

@@ -22,6 +22,7 @@ from formic_world import World
 from .ownership import Claim
 from . import convert, qos
 from .agent_host import WorldWatch
+from .lockstep import WorldLost
 
 RESEND_S = 1.0  # re-send the last actions when the world has not moved on for this long
 
@@ -46,6 +47,7 @@ class PlannerNode(Node):
         self.world_digests: dict[int, str] = {}
         self.mismatches = 0
         self.finished = False
+        self.get_logger().info(f"up: waiting for a world in {namespace}")
 
     def _on_scenario(self, msg: ScenarioDescription) -> None:
         if msg.scenario_json == self.scenario_json:
@@ -121,9 +123,14 @@ def serve_planner(
         executor.add_node(node)
         watch = WorldWatch(node)
         try:
-            while not (once and (node.finished or watch.gone(node.scenario_json))):
+            while not (once and node.finished):
                 executor.spin_once(timeout_sec=0.1)
                 node.tick()
+                if once and not node.finished and watch.gone(node.scenario_json):
+                    if node.world.t + 1 >= node.world.config.episode_steps:
+                        break  # it ended: only the final state was lost
+                    raise WorldLost(f"the world left at step {node.world.t} of {node.world.config.episode_steps}, "
+                                    "before the episode ended")
         except KeyboardInterrupt:
             pass
         return node.mismatches

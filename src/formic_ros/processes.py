@@ -2,11 +2,13 @@
 terminal's Ctrl-C reaches only the launcher, which then stops the children in order) and with a
 parent-death signal (so even a SIGKILLed launcher leaves no orphans); stop it with SIGINT, then
 SIGTERM, then SIGKILL to its whole process group, each after a grace period, and reap it; its
-log file; the JSON lines it prints."""
+log file; the JSON lines it prints; the shared-memory files of Fast DDS processes that died
+without removing them."""
 
 from __future__ import annotations
 
 import ctypes
+import fcntl
 import json
 import os
 import signal
@@ -65,6 +67,30 @@ class Child:
         return self.name, self.process.wait()
 
 
+SHM_DIR = Path("/dev/shm")
+SHM_MIN_AGE_S = 10.0  # younger files are left alone: their process may not have locked them yet
+
+
+def remove_stale_shm(directory: Path = SHM_DIR) -> int:
+    """Remove Fast DDS shared-memory segments and ports whose owner has died (a SIGKILLed node
+    cannot remove its own): each has a lock file (``..._el`` or ``..._sl``) that a live owner holds
+    locked, so one we can lock is stale. Returns the number removed."""
+    removed = 0
+    for lock in directory.glob("fastrtps_*_[es]l"):
+        try:
+            if time.time() - lock.stat().st_mtime < SHM_MIN_AGE_S:
+                continue
+            with open(lock, "ab") as handle:
+                fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)  # OSError: in use
+        except OSError:
+            continue
+        base = lock.name[:-3]
+        for name in (base, lock.name, f"sem.{base}_mutex"):  # the segment, its lock, a port's mutex
+            (directory / name).unlink(missing_ok=True)
+        removed += 1
+    return removed
+
+
 def stop_all(children: list[Child]) -> dict[str, int]:
     """Stop every child at once: SIGINT to all, then SIGTERM to those still running, then
     SIGKILL, each step waiting on one shared deadline (the slowest child's grace), so a launch
@@ -118,8 +144,8 @@ def spawn(name: str, spec: dict, spec_dir: Path, env: dict[str, str], stdout=Non
 
 class Children:
     """The child processes of one launch, as a context: on exit every child is stopped (all
-    at once, :func:`stop_all`) and reaped, its files closed and the launch's
-    temporary directory :attr:`dir` (option files, stdout files) removed; exit statuses in
+    at once, :func:`stop_all`) and reaped, its files closed, the launch's temporary directory
+    :attr:`dir` (option files, stdout files) and stale shared memory removed; exit statuses in
     :attr:`codes`. A child's log goes to stderr, or to ``LOG_DIR/NAME.log``."""
 
     def __init__(self, prefix: str, env: dict[str, str], log_dir: str | None):
@@ -139,6 +165,7 @@ class Children:
             for file in self.files:
                 file.close()
             self._tmp.cleanup()
+            remove_stale_shm()  # what a child killed with SIGKILL left behind
 
     def start(self, name: str, spec: dict, stdout=None, grace_s: tuple[float, float] = STOP_GRACE_S) -> Child:
         """Child ``name`` on ``spec``: its output (stdout too, unless given) to its log."""

@@ -45,6 +45,10 @@ def reliable(depth: int, latched: bool = False) -> QoSProfile:
 LATCHED = reliable(1, latched=True)
 # The lockstep exchange: observations and actions (at most a step or two in flight).
 STREAM = reliable(10)
+# An agent node's observation reader: only the newest waits, so a slow robot answers the
+# latest step instead of working through a backlog (the world's writer keeps STREAM's depth,
+# so a recorder that falls behind still gets every observation).
+LATEST = reliable(1)
 # What the world logs each step (state, applied actions, clock, score): a deep writer history,
 # so a subscriber that falls behind for a while (a recorder starting up) loses nothing.
 LOG_DEPTH = 200

@@ -61,6 +61,7 @@ class WorldNodeOptions:
     require_subscribers: tuple[str, ...] = ()  # topics (e.g. "applied_actions") needing a subscriber before step 0
     recorders: int = 0  # recorders that must match every topic before step 0 (more if present at start)
     progress: bool = False
+    allow_empty: bool = False  # step on when no agent answered step 0 (else NobodyJoined)
     view_port: int | None = None  # live view (formic_view, Foxglove WebSocket) on this port; None: none
 
 
@@ -108,7 +109,8 @@ class WorldNode(Node):
         self.scenario = scenario
         self.world = World(scenario)
         opts = self.options
-        self.lockstep = Lockstep(n, self.log, self.get_logger(), opts.deadline_s, opts.startup_timeout_s, opts.rate_hz)
+        self.lockstep = Lockstep(n, self.log, self.get_logger(), opts.deadline_s, opts.startup_timeout_s, opts.rate_hz,
+                                 opts.allow_empty)
         self.inbox = self.lockstep.inbox
         self.inbox.gate, self.ownership.rejected = self.ownership.allowed, self.inbox.rejected
         self.scenario_pub.publish(convert.encode_scenario(scenario, opts.policy_label))

@@ -1,0 +1,175 @@
+"""How node processes start, wait and end: a world nobody joins, a ``--once`` host whose world
+leaves, SIGTERM in every state of every node command, and a host that acts for the agents
+heard when one observation is late. Real processes, bounded and reaped."""
+
+from __future__ import annotations
+
+import json
+import signal
+import time
+
+import pytest
+
+pytest.importorskip("rclpy")
+pytest.importorskip("formic_interfaces.msg")
+
+from ros_helpers import Spawner, fresh_domain_id  # noqa: E402
+
+SMALL = ("--agents", "2", "--size", "16", "--seed", "0")
+SIGTERM_EXIT_S = 5.0  # "within a few seconds"
+UP = {"world": "episode:", "agents": "up: agents", "batched": "up: agents", "planner": "up: waiting",
+      "record": "recording to", "trainer": "waiting for rollouts"}  # what each node says once it waits
+
+
+@pytest.fixture
+def spawner(tmp_path):
+    spawner = Spawner(tmp_path, fresh_domain_id())
+    yield spawner
+    spawner.reap_all()
+
+
+def domain(spawner: Spawner) -> tuple[str, str]:
+    return "--domain-id", str(spawner.domain_id)
+
+
+def test_a_world_nobody_joins_exits_with_an_error_unless_asked_to_run_empty(spawner):
+    alone = spawner.formic("alone", "world", *SMALL, "--steps", "5", "--startup-timeout", "1.5", *domain(spawner))
+    assert alone.wait() == 1
+    assert "no agent answered step 0 within 1.5 s" in alone.output() and "--allow-empty" in alone.output()
+    empty = spawner.formic("empty", "world", *SMALL, "--steps", "5", "--startup-timeout", "1.5", "--allow-empty",
+                           "--json", *domain(spawner))
+    assert empty.wait() == 0, empty.output()[-2000:]
+    assert empty.json_line()["missed_actions"] == 2 * 5
+
+
+def test_a_once_host_whose_world_leaves_mid_episode_exits_non_zero(spawner):
+    world = spawner.formic("world", "world", *SMALL, "--steps", "100000", "--rate", "20", *domain(spawner))
+    host = spawner.formic("host", "agents", "--ids", "0-1", "--policy", "random", "--once", *domain(spawner))
+    world.wait_for_text("every agent answered step 0", timeout=60)
+    time.sleep(1.0)
+    world.popen.send_signal(signal.SIGTERM)
+    assert world.wait(timeout=SIGTERM_EXIT_S) == 130
+    assert host.wait(timeout=10) == 1, host.output()[-2000:]
+    assert "the world left at step" in host.output() and "before the episode ended" in host.output()
+
+
+@pytest.mark.parametrize("state", ["waiting", "stepping"])
+def test_every_node_command_exits_soon_after_sigterm(spawner, tmp_path, state):
+    """waiting: each command alone in a domain of its own (the world for its agents, the rest
+    for a world); stepping: all but the planner (it would claim the hosts' agents) in one
+    free-running episode."""
+    commands = {
+        "world": ("world", *SMALL, "--steps", "100000", "--rate", "50", "--startup-timeout", "600"),
+        "agents": ("agents", "--ids", "0", "--policy", "csaf11"),
+        "batched": ("agents", "--ids", "1", "--policy", "random", "--transport", "batched"),
+        "planner": ("planner",),
+        "record": ("record", "--out", str(tmp_path / "rec")),
+        "trainer": ("trainer", "--set", "teams=2", "--run-dir", str(tmp_path / "run")),
+    }
+    if state == "waiting":
+        procs = {name: spawner.formic(name, *args, "--domain-id", str(fresh_domain_id()))
+                 for name, args in commands.items()}
+    else:
+        procs = {name: spawner.formic(name, *args, *domain(spawner))
+                 for name, args in commands.items() if name != "planner"}
+        procs["world"].wait_for_text("every agent answered step 0", timeout=60)
+    for name, proc in procs.items():  # each is up, waiting or stepping
+        proc.wait_for_text(UP[name], timeout=60)
+    time.sleep(0.5)
+    for name, proc in procs.items():
+        assert proc.alive(), f"{name} ended early:\n{proc.output()[-2000:]}"
+        proc.popen.send_signal(signal.SIGTERM)
+    stopped = time.monotonic()
+    for name, proc in procs.items():
+        status = proc.wait(timeout=max(0.1, stopped + SIGTERM_EXIT_S - time.monotonic()))
+        assert status in (0, 130), f"{name} exited {status}:\n{proc.output()[-2000:]}"
+        assert "Traceback" not in proc.output(), f"{name}:\n{proc.output()[-2000:]}"
+
+
+PARTIAL = """
+import json, sys, time
+import numpy as np, rclpy
+from formic_agent.policy import AgentBatch
+from formic_interfaces.msg import AgentAction, AgentObservation
+from formic_ros import convert, qos
+from formic_ros.agent_host import PARTIAL_WAIT_S, AgentHost
+from formic_ros.env import ros_session
+from formic_ros.ownership import Ownership
+from formic_world import World, WorldConfig, generate_scenario
+
+with ros_session(int(sys.argv[1])) as executor:
+    scenario = generate_scenario(WorldConfig(height=16, width=16, n_agents=4), seed=5)
+    world = World(scenario)
+    result = world.reset(scenario)
+    node = rclpy.create_node("world", namespace="/formic")  # the world's side of the exchange, by hand
+    ownership = Ownership(node, lambda msg, topic: None)
+    node.create_publisher(type(convert.encode_scenario(scenario, "")), qos.SCENARIO, qos.LATCHED).publish(
+        convert.encode_scenario(scenario, "random"))
+    obs_pubs = [node.create_publisher(AgentObservation, qos.agent_topic(a, qos.AGENT_OBSERVATION), qos.STREAM)
+                for a in range(4)]
+    heard = []  # (seconds since step 0 went out, agent, action)
+    for a in range(4):
+        node.create_subscription(AgentAction, qos.agent_topic(a, qos.AGENT_ACTION),
+                                 lambda m: heard.append((time.monotonic() - sent, m.agent_id, m.action)), qos.STREAM)
+    host = AgentHost([0, 1, 2, 3], "random")
+    for n in [node, *host.nodes]:
+        executor.add_node(n)
+    def spin(seconds):
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            executor.spin_once(timeout_sec=0.01)
+    deadline = time.monotonic() + 30
+    while not (host.claim.ready() and all(p.get_subscription_count() for p in obs_pubs)):
+        assert time.monotonic() < deadline, "host never ready"
+        spin(0.05)
+    batch = AgentBatch.from_world(world, observations=result.observations, action_mask=result.action_mask)
+    msgs = convert.encode_agent_observations(batch, result.rewards, result.done)
+    sent = time.monotonic()
+    for a in (0, 1, 2):  # agent 3's observation is "lost" for a while
+        obs_pubs[a].publish(msgs[a])
+    spin(1.0)
+    late_at = time.monotonic() - sent
+    obs_pubs[3].publish(msgs[3])
+    spin(1.0)
+    from formic_runtime.team import Team
+    team = Team.for_agents("random", [0, 1, 2, 3]).build()
+    team.reset(4, scenario.seed)
+    print(json.dumps({"heard": heard, "late_at": late_at, "wait": PARTIAL_WAIT_S,
+                      "together": team.act(batch).tolist()}), flush=True)
+"""
+
+
+def test_a_host_acts_for_the_agents_heard_when_one_observation_is_late(spawner):
+    """Agents 0-2's step-0 observations arrive, agent 3's a second later: the host answers 0-2
+    about PARTIAL_WAIT_S after the first, and 3 when it comes, with the actions it would have
+    chosen for all four at once (randomness is drawn per agent and step)."""
+    proc = spawner.python("partial", "-c", PARTIAL, str(spawner.domain_id), limit_s=90)
+    assert proc.wait() == 0, proc.output()[-3000:]
+    out = proc.json_line()
+    heard = {agent: (at, action) for at, agent, action in out["heard"]}
+    assert sorted(heard) == [0, 1, 2, 3] and len(out["heard"]) == 4  # each answered once
+    assert all(out["wait"] * 0.9 <= heard[a][0] < out["late_at"] for a in (0, 1, 2))
+    assert heard[3][0] >= out["late_at"]
+    assert [heard[a][1] for a in range(4)] == out["together"]
+
+
+def test_stale_shared_memory_is_removed_and_live_memory_kept(tmp_path):
+    """A segment whose lock file nobody holds (its process was SIGKILLed) goes with its lock;
+    one whose lock is held, and one too young to judge, stay."""
+    import fcntl
+    import os
+
+    from formic_ros.processes import SHM_MIN_AGE_S, remove_stale_shm
+
+    old = time.time() - SHM_MIN_AGE_S - 1
+    for name in ("fastrtps_00000000000000aa", "fastrtps_00000000000000bb", "fastrtps_00000000000000cc"):
+        for path in (tmp_path / name, tmp_path / f"{name}_el"):
+            path.write_bytes(b"x")
+            if "cc" not in name:
+                os.utime(path, (old, old))
+    with open(tmp_path / "fastrtps_00000000000000bb_el", "ab") as held:
+        fcntl.flock(held, fcntl.LOCK_EX)  # a live owner
+        assert remove_stale_shm(tmp_path) == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "fastrtps_00000000000000bb", "fastrtps_00000000000000bb_el",
+        "fastrtps_00000000000000cc", "fastrtps_00000000000000cc_el"]
