@@ -4,7 +4,6 @@ heard when one observation is late. Real processes, bounded and reaped."""
 
 from __future__ import annotations
 
-import json
 import signal
 import time
 
