@@ -36,7 +36,7 @@ from . import qos
 from .graph import recorders_matched
 from .wire import read
 
-GRAPH_REFRESH_S = 0.1  # a per-agent topic's publishers are re-read at most this often
+GRAPH_REFRESH_S = 2.0  # a per-agent topic's publishers are re-read at most this often
 RECHECK_S = 0.5  # refused claims are re-examined this often (has the first owner left?)
 TAKEOVER_GRACE_S = 2.0  # a claim this young is never taken over: its node may not be in the graph yet
 READY_CHECK_S = 0.05  # a driver re-reads the graph at most this often while it waits for recorders
