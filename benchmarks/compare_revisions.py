@@ -31,8 +31,10 @@ BENCHES = {  # name: (formic arguments, {figure: path into the JSON})
 }
 
 
-def run_bench(src: Path, args: list[str]) -> dict:
+def run_bench(src: Path, args: list[str], dds_profile: str | None) -> dict:
     env = {**os.environ, "PYTHONPATH": str(src)}
+    if dds_profile:
+        env["FASTRTPS_DEFAULT_PROFILES_FILE"] = dds_profile
     done = subprocess.run([sys.executable, "-m", "formic_cli.main", *args], env=env, capture_output=True,
                           text=True, timeout=900, check=True)
     return json.loads([line for line in done.stdout.splitlines() if line.startswith("{")][-1])
@@ -49,6 +51,8 @@ def main() -> None:
     parser.add_argument("before", help="git revision to compare this working tree with")
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--benches", default=",".join(BENCHES))
+    parser.add_argument("--dds-profile", help="Fast DDS XML profile for both sides (e.g. this tree's "
+                        "src/formic_ros/fastdds/loopback.xml: tells code from transport settings)")
     args = parser.parse_args()
     figures: dict[tuple[str, str], dict[str, list[float]]] = {}
     with tempfile.TemporaryDirectory(prefix="formic-before-") as tmp:
@@ -60,13 +64,14 @@ def main() -> None:
                 for name in args.benches.split(","):
                     command, wanted = BENCHES[name]
                     for side, src in (("before", worktree / "src"), ("after", ROOT / "src")):
-                        result = run_bench(src, command)
+                        result = run_bench(src, command, args.dds_profile)
                         for figure, path in wanted.items():
                             figures.setdefault((name, figure), {}).setdefault(side, []).append(pick(result, path))
                 print(f"round {round_ + 1}/{args.rounds} done", file=sys.stderr, flush=True)
         finally:
             subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(worktree)], check=False)
-    print(f"| bench (128 agents) | before ({args.before}) | after | after/before |\n|---|---|---|---|")
+    profile = f", DDS profile {Path(args.dds_profile).name} on both" if args.dds_profile else ""
+    print(f"| bench (128 agents{profile}) | before ({args.before}) | after | after/before |\n|---|---|---|---|")
     for (name, figure), sides in figures.items():
         before, after = statistics.median(sides["before"]), statistics.median(sides["after"])
         print(f"| {name}: {figure} | {before:,.0f} | {after:,.0f} | {after / before:.3f} |")

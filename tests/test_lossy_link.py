@@ -10,7 +10,7 @@ import sys
 
 import pytest
 
-from formic_ros.netsim import lockstep_across_link, namespaces_available
+from netsim import lockstep_across_link, namespaces_available
 
 pytestmark = pytest.mark.skipif(not namespaces_available(), reason="cannot create network namespaces")
 
@@ -21,7 +21,7 @@ def test_lockstep_survives_lossy_link(tmp_path):
                                    prefix="fxlt", limit_s=150, workdir=str(tmp_path))
     n_actions = 16 * 60
     # The speed (5.9 steps/s measured, 1.1 with Fast DDS's defaults) is a benchmark figure
-    # (`python -m formic_ros.netsim bench`, docs/ros.md), not asserted here; a lost sample
+    # (`sudo .venv/bin/python benchmarks/netsim.py bench`, docs/ros.md), not asserted here; a lost sample
     # repaired only at the default 3 s heartbeat shows as missed actions, which are.
     assert summary["missed_actions"] <= 0.01 * n_actions, summary
     if summary["missed_actions"] == 0:

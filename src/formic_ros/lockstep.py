@@ -67,7 +67,7 @@ class ActionInbox:
         self.duplicates = 0
         self.closed_step = -1
         self.closed_actions = np.full(n_agents, NO_ACTION, dtype=np.int64)
-        self.gate: Callable[[str, np.ndarray], np.ndarray] | None = None  # (topic, ids) -> mask of owned actions
+        self.owners = None  # formic_ros.ownership.Ownership: allowed(topic, agent), allowed_batch(topic, ids)
 
     def open(self, step: int) -> None:
         self.step, self.is_open = step, True
@@ -89,7 +89,7 @@ class ActionInbox:
         if step != self.step or not self.is_open or not 0 <= action <= 4 or self.received[agent]:
             self.offer(step, np.array([agent]), np.array([action]), qos.agent_topic(agent, qos.AGENT_ACTION), via)
             return
-        if self.gate is not None and not self.gate(via, np.array([agent]))[0]:
+        if self.owners is not None and not self.owners.allowed(via, agent):
             return
         self.actions[agent] = action
         self.received[agent] = True
@@ -119,8 +119,8 @@ class ActionInbox:
             self.reject("action out of range", int(bad.sum()),
                          f"{source}: actions {acts[bad][:8].tolist()} for agents {ids[bad][:8].tolist()} (valid 0-4)")
         ok = ~unknown & ~bad
-        if self.gate is not None and ok.any():
-            ok[ok] = self.gate(via, ids[ok])
+        if self.owners is not None and ok.any():
+            ok[ok] = self.owners.allowed_batch(via, ids[ok])
         ids, acts = ids[ok], acts[ok]
         fresh = ~self.received[ids]
         self.duplicates += int((~fresh).sum())

@@ -112,7 +112,7 @@ class WorldNode(Node):
         self.lockstep = Lockstep(n, self.log, self.get_logger(), opts.deadline_s, opts.startup_timeout_s, opts.rate_hz,
                                  opts.allow_empty)
         self.inbox = self.lockstep.inbox
-        self.inbox.gate, self.ownership.rejected = self.ownership.allowed, self.inbox.rejected
+        self.inbox.owners, self.ownership.rejected = self.ownership, self.inbox.rejected
         self.scenario_pub.publish(convert.encode_scenario(scenario, opts.policy_label))
 
     # ------------------------------------------------------------------ actions in

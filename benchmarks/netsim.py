@@ -6,12 +6,12 @@ in a third namespace (``<prefix>r``), where :func:`forward` copies Ethernet fram
 two ends with a fixed one-way delay and a seeded random loss of IPv4 packets. Veth leaves UDP
 checksums unfilled (offload), so the forwarder zeroes them (valid for IPv4: "no checksum").
 
-Use only for tests and measurements::
+Test and benchmark infrastructure, not part of the package. Use only for tests and measurements::
 
     with Link("fx", delay_ms=20, loss=0.02, seed=1) as link:
         subprocess.run(link.exec_in("a") + ["python", "-c", "..."])   # address link.addr("a")
 
-or from a shell: ``python -m formic_ros.netsim forward IF1 IF2 --delay-ms 20 --loss 0.02``
+or from a shell: ``python benchmarks/netsim.py forward IF1 IF2 --delay-ms 20 --loss 0.02``
 (inside the router namespace).
 """
 
@@ -146,7 +146,7 @@ class Link:
                 _ip("-n", self.ns(side), "link", "set", host, "up")
                 _ip("-n", self.ns("r"), "link", "set", router, "up")
             self.forwarder = subprocess.Popen(
-                self.exec_in("r") + [sys.executable, "-m", "formic_ros.netsim", "forward",
+                self.exec_in("r") + [sys.executable, os.path.abspath(__file__), "forward",
                                      f"{self.prefix}a1", f"{self.prefix}b1", "--delay-ms", str(self.delay_ms),
                                      "--loss", str(self.loss), "--seed", str(self.seed)],
                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
@@ -240,7 +240,7 @@ def lockstep_across_link(agents: int = 16, steps: int = 60, size: int = 32, seed
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m formic_ros.netsim")
+    parser = argparse.ArgumentParser(prog="python benchmarks/netsim.py")
     sub = parser.add_subparsers(dest="command", required=True)
     f = sub.add_parser("forward", help="relay frames between two interfaces with delay and loss")
     f.add_argument("if1")
