@@ -194,7 +194,7 @@ def lockstep_across_link(agents: int = 16, steps: int = 60, size: int = 32, seed
     summary plus ``link``. ``fastdds_defaults``: an empty user profile (Fast DDS's own 3 s
     heartbeat) instead of the shipped one. Both sides use UDPv4 only (no shared memory between
     namespaces of one host) and name each other in ``ROS_STATIC_PEERS``."""
-    from .env import ros_environment
+    from formic_ros.env import ros_environment
 
     world_args = ["--agents", str(agents), "--size", str(size), "--steps", str(steps), "--seed", str(seed)]
     with Link(prefix, delay_ms=delay_ms, loss=loss, seed=link_seed) as link:
