@@ -120,17 +120,22 @@ def check_domain_id(domain_id: int | None) -> None:
         raise ValueError(f"ROS domain id {domain_id} is outside 0-232")
 
 
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+
+
 @contextmanager
 def stop_requests() -> Iterator[list]:
-    """SIGINT and SIGTERM append to the yielded list instead of interrupting (a node that must
-    close files or save a checkpoint polls it); the previous handlers come back on exit."""
+    """SIGINT, SIGTERM and SIGHUP append to the yielded list instead of interrupting, until the
+    block ends: a node that must close a recording or save a checkpoint polls the list, and a
+    second Ctrl-C (or the terminal's SIGHUP) cannot cut its closing short. The previous
+    handlers come back on exit."""
     stop: list[bool] = []
-    handlers = {s: signal.signal(s, lambda *_: stop.append(True)) for s in (signal.SIGINT, signal.SIGTERM)}
+    handlers = {s: signal.signal(s, lambda *_: stop.append(True)) for s in STOP_SIGNALS}
     try:
         yield stop
     finally:
         for sig, handler in handlers.items():
-            signal.signal(sig, handler)
+            signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
 
 
 def _interrupt(signum, frame) -> None:
@@ -138,13 +143,14 @@ def _interrupt(signum, frame) -> None:
 
 
 @contextmanager
-def ros_session(domain_id: int | None = None) -> Iterator:
+def ros_session(domain_id: int | None = None, interrupt: bool = True) -> Iterator:
     """rclpy initialised for this process, with one EventsExecutor (yielded).
 
     rclpy's own signal handlers are off: SIGINT and SIGTERM raise KeyboardInterrupt in the
     spin loop (``spin_once`` with short timeouts, never ``spin()``: the events executor from
     the wheels ignores signals inside ``spin()``), so every node shuts down through the same
-    ``finally``. Nodes added to the executor are destroyed on exit.
+    ``finally``; with ``interrupt=False`` the signal handlers are left as they are (inside
+    :func:`stop_requests`). Nodes added to the executor are destroyed on exit.
     """
     check_domain_id(domain_id)
     configure_this_process(domain_id)
@@ -152,7 +158,7 @@ def ros_session(domain_id: int | None = None) -> Iterator:
     from rclpy.experimental import EventsExecutor
     from rclpy.signals import SignalHandlerOptions
 
-    previous = signal.signal(signal.SIGTERM, _interrupt)
+    previous = signal.signal(signal.SIGTERM, _interrupt) if interrupt else None
     rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
     executor = EventsExecutor()
     try:
@@ -163,4 +169,5 @@ def ros_session(domain_id: int | None = None) -> Iterator:
         for node in nodes:
             node.destroy_node()
         rclpy.try_shutdown()
-        signal.signal(signal.SIGTERM, previous)
+        if interrupt:
+            signal.signal(signal.SIGTERM, previous)

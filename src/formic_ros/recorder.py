@@ -18,7 +18,6 @@ from __future__ import annotations
 import importlib
 import json
 import os
-import signal
 import time
 from collections import Counter
 from dataclasses import dataclass
@@ -198,36 +197,21 @@ class Recorder(Node):
         })
 
 
-STOP_SIGNALS = tuple(getattr(signal, n) for n in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, n))
-
-
-def _catch(handler) -> dict:
-    return {s: signal.signal(s, handler) for s in STOP_SIGNALS}
-
-
-def _restore(handlers: dict) -> None:
-    for sig, handler in handlers.items():
-        signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
-
-
 def record(out: str | Path, options: RecorderOptions, domain_id: int | None = None,
            duration_s: float | None = None, on_ready=None) -> dict:
     """Record until SIGINT/SIGTERM/SIGHUP (or ``duration_s``); returns counts per topic. The
     bag is closed (summary and metadata.yaml written) on every exit but a SIGKILL: from the
     first signal to the end of the close, further signals are only noted (a second Ctrl-C or
     the terminal's SIGHUP cannot cut the close short)."""
-    from .env import check_domain_id, ros_session
+    from .env import check_domain_id, ros_session, stop_requests
 
     check_domain_id(domain_id)  # before anything is written
-    stop = []
     counts: dict = {}
     skipped: dict = {}
-    previous = _catch(lambda *_: stop.append(True))
-    try:
+    with stop_requests() as stop:
         writer = BagWriter(out, chunk_bytes=options.chunk_bytes, flush_seconds=options.flush_seconds)
         try:
-            with ros_session(domain_id) as executor:
-                _catch(lambda *_: stop.append(True))  # ros_session installs its own SIGTERM handler
+            with ros_session(domain_id, interrupt=False) as executor:
                 node = Recorder(writer, options)
                 executor.add_node(node)
                 if on_ready is not None:
@@ -239,8 +223,6 @@ def record(out: str | Path, options: RecorderOptions, domain_id: int | None = No
                 counts, skipped = dict(node.counts), dict(node.skipped)
         finally:
             writer.close()
-    finally:
-        _restore(previous)
     return {"recording": str(out), "file": str(writer.mcap_path), "messages": sum(counts.values()),
             "topics": counts, "skipped": skipped}
 

@@ -11,6 +11,7 @@ state. The hosts' side is :mod:`formic_ros.learning_host`.
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import hashlib
 import time
@@ -168,8 +169,9 @@ def serve_trainer(cfg: TrainConfig, run_dir: Path, resume: bool = True, namespac
     pending: deque = deque()
     updates_here = rollouts_here = 0
     started = time.monotonic()
-    try:
-        with ros_session(domain_id) as executor, stop_requests() as stop:
+    with stop_requests() as stop, contextlib.ExitStack() as closing:  # the checkpoint is saved whatever comes
+        closing.callback(learner.close)
+        with ros_session(domain_id, interrupt=False) as executor:
             node = Node("trainer", namespace=namespace)
             executor.add_node(node)
             publisher = node.create_publisher(Weights, qos.WEIGHTS, qos.LATCHED)
@@ -206,7 +208,5 @@ def serve_trainer(cfg: TrainConfig, run_dir: Path, resume: bool = True, namespac
                     + (f"; episode food {stats['episode_food']:.1f}" if "episode_food" in stats else ""))
             if not stop:  # the last weights reach the hosts before the node goes
                 publisher.wait_for_all_acked(Duration(seconds=2.0))
-    finally:
-        learner.close()
     return {"run_dir": str(run_dir), "version": learner.version, "updates": updates_here,
             "dropped": learner.dropped, "seconds": time.monotonic() - started}
