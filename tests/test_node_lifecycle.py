@@ -101,7 +101,8 @@ with ros_session(int(sys.argv[1])) as executor:
     world = World(scenario)
     result = world.reset(scenario)
     node = rclpy.create_node("world", namespace="/formic")  # the world's side of the exchange, by hand
-    ownership = Ownership(node, lambda msg, topic: None)
+    ownership = Ownership(node, lambda msg, topic: None,
+                          lambda kind, topic, profile, callback: node.create_subscription(kind, topic, callback, profile))
     node.create_publisher(type(convert.encode_scenario(scenario, "")), qos.SCENARIO, qos.LATCHED).publish(
         convert.encode_scenario(scenario, "random"))
     obs_pubs = [node.create_publisher(AgentObservation, qos.agent_topic(a, qos.AGENT_OBSERVATION), qos.STREAM)

@@ -203,7 +203,8 @@ def test_killed_host_does_not_stop_the_world_and_a_restarted_one_rejoins(spawner
 
 
 def test_bad_actions_are_rejected_and_logged(spawner, monkeypatch):
-    """A rogue node in this process drives agent 3 and floods the world with bad actions first."""
+    """A rogue node in this process drives agent 3 and floods the world with bad actions first,
+    undecodable bytes among them."""
     from formic_interfaces.msg import ActionBatch, AgentAction, AgentObservation
 
     steps = 20
@@ -231,6 +232,8 @@ def test_bad_actions_are_rejected_and_logged(spawner, monkeypatch):
             batch.publish(ActionBatch(step=step, agent_ids=wire.u32(np.array(ids)), actions=bytes(acts)))
         other.publish(AgentAction(step=t, agent_id=3, action=1))  # on agent 1's topic
         own.publish(AgentAction(step=t, agent_id=3, action=200))
+        for publisher in (own, batch):  # bytes that do not decode as the topic's type (truncated CDR)
+            publisher.publish(b"\x00\x01\x00\x00\x05")
         pending.append((t, time.monotonic()))
 
     node.create_subscription(AgentObservation, "~/observation", on_observation, 10)
@@ -253,7 +256,7 @@ def test_bad_actions_are_rejected_and_logged(spawner, monkeypatch):
     summary = world.json_line()
     assert summary["steps"] == steps and summary["missed_actions"] == 0
     rejected = summary["rejected_actions"]
-    assert rejected["malformed"] == steps
+    assert rejected["malformed"] == 3 * steps  # a length mismatch and two undecodable samples a step
     assert rejected["future step"] == steps
     assert rejected["unknown agent"] == steps
     assert rejected["agent id mismatch"] == steps

@@ -4,7 +4,8 @@ Observations are :class:`formic_agent.policy.AgentBatch` rows (batched or one me
 agent), actions int64 arrays (NO_ACTION -1 travels as 255), rollouts the arrays
 :meth:`formic_trainer.actor.Actor.rollout` returns, weights a :class:`WeightsPayload`.
 Array fields and the compact observation encoding are in :mod:`formic_ros.wire`; viewer
-messages (one way) in :mod:`formic_ros.viewer_msgs`.
+messages (one way) in :mod:`formic_ros.viewer_msgs`. :func:`checked_subscription` is how a
+node takes messages from others: bytes that do not decode are reported, not dropped unseen.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ import json
 from typing import NamedTuple
 
 import numpy as np
+from rclpy.serialization import deserialize_message
 from formic_interfaces.msg import (
     ActionBatch,
     AgentObservation,
@@ -30,6 +32,22 @@ from formic_world.geometry import N_ACTIONS
 
 from .qos import NO_ACTION_WIRE
 from .wire import decode_observations, f32, i32, observation_fields, read, u8, u32
+
+def checked_subscription(node, msg_type, topic: str, profile, on_message, on_malformed):
+    """A subscription that hands ``on_message`` decoded messages and ``on_malformed(topic,
+    size)`` the samples whose CDR bytes do not decode (rclpy itself drops those with only a
+    C-level log line: a malformed or truncated message would go uncounted)."""
+
+    def take(data: bytes) -> None:
+        try:
+            msg = deserialize_message(data, msg_type)
+        except RuntimeError:
+            on_malformed(topic, len(data))
+            return
+        on_message(msg)
+
+    return node.create_subscription(msg_type, topic, take, profile, raw=True)
+
 
 SCENARIO_FORMAT_VERSION = 1
 ACTION_COUNT = N_ACTIONS  # the learning host reads it

@@ -96,8 +96,9 @@ class Ownership:
     """The world's side: claims in, owners out, and :meth:`allowed` / :meth:`allowed_batch`
     (the inbox's gate)."""
 
-    def __init__(self, node, offer_batch):
+    def __init__(self, node, offer_batch, subscribe):
         self.node, self.offer_batch = node, offer_batch  # offer_batch(msg, topic): into the inbox
+        self.subscribe = subscribe  # subscribe(type, topic, qos, callback): malformed samples counted
         self.claims: dict[str, dict] = {}  # token -> claim
         self.owner_of: dict[int, str] = {}  # agent -> token
         self.refused: dict[str, dict] = {}  # token -> refused claim (re-examined)
@@ -109,7 +110,7 @@ class Ownership:
         self.trusted: dict[tuple[str, int], float] = {}  # (topic, agent) -> allowed until (monotonic s)
         self.batch_agents: dict[str, np.ndarray] = {}  # an owner's batch topic -> the agents it drives
         self.namespace = node.get_namespace().rstrip("/")
-        node.create_subscription(String, qos.CLAIMS, self._on_claim, qos.reliable(1000, latched=True))
+        subscribe(String, qos.CLAIMS, qos.reliable(1000, latched=True), self._on_claim)
         self.owners_pub = node.create_publisher(String, qos.OWNERS, qos.LATCHED)
         node.create_timer(RECHECK_S, self._recheck)
 
@@ -129,7 +130,7 @@ class Ownership:
         if claim["actions"] and claim["actions"] not in self.batch_topics:
             topic = claim["actions"]
             self.batch_topics.add(topic)
-            self.node.create_subscription(ActionBatch, topic, lambda m, t=topic: self.offer_batch(m, t), qos.STREAM)
+            self.subscribe(ActionBatch, topic, qos.STREAM, lambda m, t=topic: self.offer_batch(m, t))
         self._bind(claim)
 
     def _alive(self, owner: str) -> int:

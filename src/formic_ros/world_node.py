@@ -88,10 +88,11 @@ class WorldNode(Node):
         self.markers_pub = pub(viewer_msgs.MarkerArray, qos.AGENT_MARKERS, qos.VIEWER)
         self.agent_obs_pubs = [pub(AgentObservation, qos.agent_topic(a, qos.AGENT_OBSERVATION), qos.STREAM)
                                for a in range(n)]
-        self.actions_sub = self.create_subscription(ActionBatch, qos.ACTIONS, self._on_action_batch, qos.STREAM)
-        self.action_topics = [self.create_subscription(AgentAction, qos.agent_topic(a, qos.AGENT_ACTION), lambda m, a=a:
-                              self._on_agent_action(a, m), qos.STREAM).topic_name for a in range(n)]
-        self.ownership = Ownership(self, lambda msg, topic: self.inbox.offer(*batch_of(msg), topic, topic))
+        sub = functools.partial(convert.checked_subscription, self, on_malformed=self._on_malformed)
+        self.actions_sub = sub(ActionBatch, qos.ACTIONS, qos.STREAM, self._on_action_batch)
+        self.action_topics = [sub(AgentAction, qos.agent_topic(a, qos.AGENT_ACTION), qos.STREAM,
+                                  lambda m, a=a: self._on_agent_action(a, m)).topic_name for a in range(n)]
+        self.ownership = Ownership(self, lambda msg, topic: self.inbox.offer(*batch_of(msg), topic, topic), sub)
         self._listening, self._listening_at = [], -np.inf
         self.view = None  # the live view, fed after each step (formic_view; no ROS involved)
         if options.view_port is not None:
@@ -120,6 +121,9 @@ class WorldNode(Node):
         ids = read(msg.agent_ids, np.uint32)
         self.inbox.offer(msg.step, ids, read(msg.actions, np.uint8), f"{qos.ACTIONS} ({len(ids)} agents)",
                          self.actions_sub.topic_name)
+
+    def _on_malformed(self, topic: str, size: int) -> None:
+        self.inbox.reject("malformed", 1, f"{topic}: {size} bytes that do not decode")
 
     def _on_agent_action(self, agent: int, msg: AgentAction) -> None:
         if msg.agent_id != agent:
