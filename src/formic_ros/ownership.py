@@ -137,6 +137,8 @@ class Ownership:
         return sum(f"{ns.rstrip('/')}/{name}" == owner for name, ns in self.node.get_node_names_and_namespaces())
 
     def _bind(self, claim: dict) -> None:
+        self.trusted.clear()  # owners may change here: every source is checked again
+        self.batch_agents.clear()
         taken = []
         for a in claim["agents"]:
             first = self.claims.get(self.owner_of.get(a, ""))
@@ -165,8 +167,6 @@ class Ownership:
             self._publish_owners()
 
     def _publish_owners(self) -> None:
-        self.trusted.clear()  # owners may have changed: check every source again
-        self.batch_agents.clear()
         owners = {str(a): t for a, t in self.owner_of.items()}
         self.owners_pub.publish(String(data=json.dumps({"owners": owners, "recorders": self.recorders})))
 
