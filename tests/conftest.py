@@ -13,17 +13,13 @@ deposits when carrying), unlike NO_ACTION.
 
 from __future__ import annotations
 
-import sys
 from collections.abc import Iterable, Mapping
-from pathlib import Path
 
 import numpy as np
 
 from formic_world import Scenario, World, WorldConfig
 from formic_world.geometry import JOIN
 from formic_world.scenario import AgentStart, ResourceSpec, validate_scenario
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))  # netsim: a lossy link between namespaces
 
 NW_QUEUE = [(7, 6), (7, 5), (7, 4), (7, 3), (7, 2)]
 NE_QUEUE = [(6, 8), (5, 8), (4, 8), (3, 8), (2, 8)]

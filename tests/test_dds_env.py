@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from formic_ros import env as ros_env
-from netsim import Link, namespaces_available
+from benchmarks.netsim import Link, namespaces_available
 
 PROBE = str(Path(__file__).with_name("dds_probe.py"))
 NS = "{http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles}"

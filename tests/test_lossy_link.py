@@ -10,7 +10,7 @@ import sys
 
 import pytest
 
-from netsim import lockstep_across_link, namespaces_available
+from benchmarks.netsim import lockstep_across_link, namespaces_available
 
 pytestmark = pytest.mark.skipif(not namespaces_available(), reason="cannot create network namespaces")
 

@@ -1,0 +1,1 @@
+"""Benchmark and test infrastructure: the lossy-link forwarder (netsim) and before/after comparisons."""
