@@ -1,43 +1,11 @@
 """Cardinality-MR baseline (Hoff et al. 2010, adapted to many resources; SPEC §7).
 
-Agents are walkers or beacons. Beacons stand still and relay hop counts: to the nest and to
-every resource they have heard of (1 when it is in view, else 1 + the smallest count among
-the beacons they hear). Walkers forage using what they see and the beacons they hear.
-
-Communication is local. The policy object holds the beacon table (position and hop counts
-per agent id) only because agents of one batch share a process; an agent reads the entries
-of beacons within ``comm_radius`` of its own position, and a beacon's counts are computed
-from its own view and the beacons within ``comm_radius`` of it. Resources are known by the
-absolute cell of the resource (odometry plus the observation), which an agent learns by
-seeing it: a blocked cell at the end of a straight line of resource-queue markings (joinable
-entry cells or agents queued at a resource).
-
-Choices where SPEC §7 and the reference code are silent:
-
-* Radii. A walker counts beacons that know the nest within ``count_radius`` = 4 (its 9x9
-  neighbourhood, SPEC). Hop counts travel over ``comm_radius`` = 5 (the 11x11 view, as in the
-  reference): a walker that saw two beacons within 4 cells last step still hears one of them
-  after a step, so a new beacon always learns the way to the nest, and a walker standing
-  next to a beacon still hears the beacon one hop further on.
-* Hop counts are recomputed synchronously once per step (``batch.step``) from last step's
-  table, so a broken chain counts upwards; counts above the team size mean "unknown". A
-  beacon that sees an empty cell where a resource was marks it depleted, and the mark spreads
-  beacon to beacon (finite resources); walkers that hear it choose again.
-* Role changes are decided one agent at a time in a random order (as the reference's
-  sequential agents), so a crowd does not turn into beacons all at once.
-* A walker "at a queue" (which never becomes a beacon, so beacons do not block queues) has a
-  joinable entry, its neighbour cells, or a queued agent in its 3x3 neighbourhood.
-* A beacon's action is a no-op: a move into a blocked cell (reward as any failed move), else
-  JOIN when JOIN is invalid (it does nothing). A beacon whose every action would change the
-  world (all four cells free and a queue it could join next to it) walks again.
-* "Fewer than 5 beacons in view" counts beacons within ``comm_radius``; the reference counted
-  the resources those beacons knew.
-
-Against the reference code: the paper's Cardinality-MR ran through a wrapper that is not in
-the public code, and the public ``cardinality_policy.py`` stops on one of its own assertions
-in one of our 128-agent worlds, so its numbers cannot be reproduced from it. There is no
-``cardinality-ref`` variant: this one is the baseline, and the README compares it with the
-published line (at 1024 steps, reference timing, ours is within noise of it at 32-128 agents).
+Agents are walkers or beacons. Beacons stand still and relay hop counts to the nest and to
+every resource they have heard of; walkers forage using what they see and the beacons they
+hear. Communication is local: the policy object holds the beacon table only because agents of
+one batch share a process, and each agent reads only the beacons within ``comm_radius``. The
+choices where SPEC §7 and the reference code are silent, and why there is no reference variant,
+are in docs/baselines.md.
 """
 
 from __future__ import annotations
@@ -121,11 +89,10 @@ class CardinalityPolicy(Policy):
             k = len(self._resource_index)
             self._resource_index[cell] = k
             self.resource_cells = np.vstack([self.resource_cells, np.array([cell], dtype=np.int64)])
-            if k == self.res_hop.shape[1]:
-                grow = self.res_hop.shape[1]
-                self.res_hop = np.hstack([self.res_hop, np.full((self.n, grow), UNKNOWN, dtype=np.int32)])
+            if k == self.res_hop.shape[1]:  # full: double the columns
+                self.res_hop = np.pad(self.res_hop, ((0, 0), (0, k)), constant_values=UNKNOWN)
                 for name in ("res_dead", "sees_res", "sees_gone"):
-                    setattr(self, name, np.hstack([getattr(self, name), np.zeros((self.n, grow), dtype=bool)]))
+                    setattr(self, name, np.pad(getattr(self, name), ((0, 0), (0, k))))
 
     # -------------------------------------------------------------- perception
     def _perceive(self, batch: AgentBatch) -> np.ndarray:
@@ -159,7 +126,7 @@ class CardinalityPolicy(Policy):
         n_known = len(self.resource_cells)
         self.sees_res[ids, :n_known] = in_view & resource[rows, rr, cc]
         self.sees_gone[ids, :n_known] = in_view & ~blocked[rows, rr, cc]
-        self.sees_nest[ids] = np.abs(nest[None] - batch.positions[:, None] + 0.0).max(axis=2).min(axis=1) <= r
+        self.sees_nest[ids] = np.abs(nest[None] - batch.positions[:, None]).max(axis=2).min(axis=1) <= r
         return resource
 
     # -------------------------------------------------------------- hop counts
@@ -170,8 +137,9 @@ class CardinalityPolicy(Policy):
         gap = np.abs(where[:, None, :] - self.pos[beacons][None, :, :]).max(axis=2)
         return (gap <= radius) & (exclude[:, None] != beacons[None, :])
 
-    def _hops_from(self, ids: np.ndarray, beacons: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Hop counts and depletion marks of ``ids`` from what they see and hear (last table)."""
+    def _relay(self, ids: np.ndarray, beacons: np.ndarray) -> None:
+        """Set the hop counts and depletion marks of ``ids`` from what they see and hear of
+        ``beacons`` (all read from the table before any is written)."""
         heard = self._neighbours(self.pos[ids], beacons, self.comm_radius, ids)  # (I, M)
         k = len(self.resource_cells)
         nest = np.where(heard, self.nest_hop[beacons][None, :], UNKNOWN).min(axis=1, initial=UNKNOWN)
@@ -184,17 +152,6 @@ class CardinalityPolicy(Policy):
         limit = self.n  # a real chain has at most one hop per beacon: more means a stale loop
         nest[nest > limit] = UNKNOWN
         hops[(hops > limit) | dead] = UNKNOWN
-        return nest.astype(np.int32), hops.astype(np.int32), dead
-
-    def _update_hops(self) -> None:
-        """One synchronous relay round over every beacon (once per step)."""
-        beacons = np.flatnonzero(self.is_beacon)
-        if len(beacons) == 0:
-            return
-        self._store_hops(beacons, *self._hops_from(beacons, beacons))
-
-    def _store_hops(self, ids, nest: np.ndarray, hops: np.ndarray, dead: np.ndarray) -> None:
-        k = hops.shape[1]
         self.nest_hop[ids], self.res_hop[ids, :k], self.res_dead[ids, :k] = nest, hops, dead
 
     # -------------------------------------------------------------------- roles
@@ -220,19 +177,15 @@ class CardinalityPolicy(Policy):
                     self.is_beacon[agent] = False
                     self._clear_hops(agent)
             elif count < 2:
-                self._store_hops([agent], *self._hops_from(np.array([agent]), np.flatnonzero(self.is_beacon)))
+                self._relay(np.array([agent]), np.flatnonzero(self.is_beacon))
                 self.is_beacon[agent] = True
 
     # ---------------------------------------------------------------- walkers
-    def _heard(self, batch: AgentBatch) -> tuple[np.ndarray, np.ndarray]:
-        """Beacons each batch agent hears: (B, M) mask and the beacon ids."""
-        beacons = np.flatnonzero(self.is_beacon)
-        return self._neighbours(batch.positions, beacons, self.comm_radius, batch.agent_ids), beacons
-
-    def _choose_resources(self, batch: AgentBatch, rows: np.ndarray) -> None:
+    def _choose_resources(self, batch: AgentBatch, rows: np.ndarray, heard: np.ndarray,
+                          beacons: np.ndarray) -> None:
         """Empty walkers leaving the nest pick a known resource: weight 1/hops + 0.5; explore
-        with probability 0.5 when fewer than ``min_beacons`` beacons are in view."""
-        heard, beacons = self._heard(batch)
+        with probability 0.5 when fewer than ``min_beacons`` beacons are in view. ``heard``:
+        (B, M), which of the ``beacons`` each batch agent hears."""
         k = len(self.resource_cells)
         for row in rows:
             agent = batch.agent_ids[row]
@@ -249,7 +202,8 @@ class CardinalityPolicy(Policy):
                 known = np.append(known, -1)
             self.pursued[agent] = known[self.rng.choice(len(known), p=p)]
 
-    def _walker_targets(self, batch: AgentBatch, resource: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _walker_targets(self, batch: AgentBatch, resource: np.ndarray, heard: np.ndarray,
+                        beacons: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Offset (dr, dc) each walker heads for and whether it has one (else it explores):
         a visible queue entry of the type it needs, else the needed cells, else the beacon
         that hears the smallest hop count to its goal."""
@@ -279,15 +233,14 @@ class CardinalityPolicy(Policy):
             nest[np.flatnonzero(ok), rel_r[ok], rel_c[ok]] = True
         take(nest, loaded)
         take(resource | (obs[:, CH_RESOURCE_QUEUED] > 0), ~loaded)
-
-        heard, beacons = self._heard(batch)
         if len(beacons):
             pursued = self.pursued[batch.agent_ids]
             res_hop = self.res_hop[beacons][:, np.maximum(pursued, 0)].T  # (B, M)
             res_hop = np.where(pursued[:, None] >= 0, res_hop, UNKNOWN)
             hop = np.where(loaded[:, None], self.nest_hop[beacons][None, :], res_hop)
             rel = self.pos[beacons][None, :, :] - batch.positions[:, None, :]  # (B, M, 2)
-            key = np.where(heard & (hop < UNKNOWN), hop.astype(np.int64) * 10_000 + (rel**2).sum(axis=2), _FAR)
+            fewest_then_nearest = hop.astype(np.int64) * 10_000 + (rel**2).sum(axis=2)
+            key = np.where(heard & (hop < UNKNOWN), fewest_then_nearest, _FAR)
             best = key.argmin(axis=1)
             ok = ~found & (key[np.arange(b), best] < _FAR)
             offset[ok] = rel[np.flatnonzero(ok), best[ok]]
@@ -298,10 +251,8 @@ class CardinalityPolicy(Policy):
         """The valid move best aligned with ``offset``, not undoing the last move if avoidable;
         -1 when no move is valid."""
         dots = offset @ DIRECTION_DELTAS.T  # (B, 4)
-        moves = mask[:, :4].copy()
-        reverse = np.zeros_like(moves)
-        has_last = last >= 0
-        reverse[np.flatnonzero(has_last), (last[has_last] + 2) % 4] = True
+        moves = mask[:, :4]
+        reverse = (last[:, None] >= 0) & (np.arange(4) == (last[:, None] + 2) % 4)
         allowed = moves & ~reverse
         allowed[~allowed.any(axis=1)] = moves[~allowed.any(axis=1)]
         choice = np.where(allowed, dots, -_FAR).argmax(axis=1)
@@ -335,9 +286,11 @@ class CardinalityPolicy(Policy):
         r = obs.shape[-1] // 2
         self.pos[ids] = batch.positions
         resource = self._perceive(batch)
-        if batch.step != self.hop_step:
+        if batch.step != self.hop_step:  # one synchronous relay round over every beacon
             self.hop_step = batch.step
-            self._update_hops()
+            beacons = np.flatnonzero(self.is_beacon)
+            if len(beacons):
+                self._relay(beacons, beacons)
         queue_channels = [CH_RESOURCE_ENTRY, CH_CACHE_ENTRY, CH_RESOURCE_QUEUED, CH_CACHE_QUEUED]
         around = obs[:, queue_channels, r - 1: r + 2, r - 1: r + 2]
         self._change_roles(batch, at_queue=(around > 0).any(axis=(1, 2, 3)))
@@ -354,18 +307,16 @@ class CardinalityPolicy(Policy):
         actions[beacon] = np.where(stay.any(axis=1), stay.argmax(axis=1), JOIN)
 
         walker = free & ~beacon
-        empty = batch.loads <= 0
-        heard, beacons = self._heard(batch)
+        beacons = np.flatnonzero(self.is_beacon)
+        heard = self._neighbours(batch.positions, beacons, self.comm_radius, ids)  # (B, M)
         pursued = self.pursued[ids]
         column = np.maximum(pursued, 0)
         lost = (pursued >= 0) & (
             self.sees_gone[ids, column] | (heard & self.res_dead[beacons][:, column].T).any(axis=1)
         )
-        leaving_nest = self.prev_load[ids] > 0
-        choose = walker & empty & (leaving_nest | lost)
-        self._choose_resources(batch, np.flatnonzero(choose))
-
-        offset, found = self._walker_targets(batch, resource)
+        choose = walker & (batch.loads <= 0) & ((self.prev_load[ids] > 0) | lost)  # left the nest, or lost
+        self._choose_resources(batch, np.flatnonzero(choose), heard, beacons)
+        offset, found = self._walker_targets(batch, resource, heard, beacons)
         joining = walker & mask[:, JOIN]
         move = self._steer(offset, mask, self.last_move[ids])
         explorers = np.flatnonzero(walker & ~joining & ~found)

@@ -1,35 +1,10 @@
 """Centralized planner baseline (SPEC §7): full observability, greedy allocation, local paths.
 
-The upper bound of the paper's comparisons. Every step:
-
-1. **Allocation.** Free agents without a target are assigned greedily: empty ones to resource
-   queues, loaded ones to cache queues. A target's cost is its distance to the nest plus its
-   expected queueing delay; the cheapest target goes to the free agent closest to it, then
-   costs are updated and the next pair is chosen. The delay is the queue's pipeline
-   (the reference planner's model, which reduces to "queued + assigned agents times service
-   time" when they are all close): queued agents are served first, inbound agents join as they
-   arrive, each takes one service time, and the new agent waits for whatever work is left when
-   it gets there. A finite resource never gets more queued plus inbound agents than it has
-   units; when no resource is feasible, agents spread to distinct random cells.
-2. **Paths.** Distances to every target cell are breadth-first fields over the static grid
-   (cached until a resource respawns), so the shortest path ignoring agents is a descent.
-   An agent takes a free neighbour one step closer (not one another agent already chose);
-   when every such neighbour holds an agent it waits behind an agent that is about to move,
-   and otherwise searches a bounded A* window with all agents as obstacles (the field is the
-   exact heuristic past the window), taking a sidestep that costs at most two extra steps or
-   asking a lower-priority blocker to step aside. Priority: an agent that blocks a queue's
-   cells after service, then agents stuck for a while, then loaded agents, then lower id.
-3. **Admission.** At most ``nest_capacity`` loaded agents walk within ``hold_radius`` of the
-   caches; the others wait at that distance, longest wait first in, and make way for anyone.
-   Without it, loaded agents crowding the caches wall in the agents that have just unloaded
-   and a 128-agent team gridlocks the nest.
-4. **Joining.** JOIN when on or next to the target entry and JOIN would enter that queue
-   (JOIN takes the nearest joinable queue, which can be a neighbouring one). An agent next to
-   an entry still held by the agent just served keeps sending JOIN, which succeeds the moment
-   the occupant leaves earlier in the same step.
-
-Cache targets are re-chosen every step (a loaded agent's best cache changes as it nears the
-nest); resource targets stay until joined, or void when a finite resource moves.
+The upper bound of the paper's comparisons. Every step it allocates free agents to queues
+greedily (distance to the nest plus the expected queueing delay), moves them along
+breadth-first distance fields with local detours around other agents, admits loaded agents to
+the nest a few at a time (else the team gridlocks there), and JOINs next to the target entry.
+The rules and the reasons behind them are in docs/baselines.md.
 """
 
 from __future__ import annotations
@@ -267,8 +242,7 @@ class CentralizedPlanner(CentralPolicy):
             self._passable = world.grid == FREE
             self._fields = {}
             self._field_array = np.zeros((64, *world.grid.shape), dtype=np.int32)
-            sources = world.queue_cells[:4, 0]  # where loaded agents unload
-            self._nest_field = bfs_field(self._passable, sources)
+            self._nest_field = bfs_field(self._passable, world.queue_cells[:4, 0])  # to the caches' spot 0
 
     def _field(self, cell: tuple[int, int]) -> int:
         """Index of the distance field towards ``cell`` (computed on first use)."""
@@ -277,9 +251,7 @@ class CentralizedPlanner(CentralPolicy):
         if index is None:
             index = len(self._fields)
             if index == len(self._field_array):  # grow by doubling: fields are reused for long
-                grown = np.zeros((2 * index, *self._field_array.shape[1:]), dtype=np.int32)
-                grown[:index] = self._field_array
-                self._field_array = grown
+                self._field_array = np.concatenate([self._field_array, np.zeros_like(self._field_array)])
             self._field_array[index] = bfs_field(self._passable, np.array([cell], dtype=np.int64))
             self._fields[cell] = index
         return index
@@ -289,9 +261,7 @@ class CentralizedPlanner(CentralPolicy):
         """Cell each queue's agents head for: its entry; one cell further out when the entry is
         still held by the agent just served (waiting beside it would box that agent in), and
         past the queue's end when the queue is full."""
-        count, head = world.queue_count, world.queue_head
-        qlen = world.config.queue_len
-        spot = queue_entry_spot(count, head, qlen)
+        spot = queue_entry_spot(world.queue_count, world.queue_head, world.config.queue_len)
         full = spot < 0
         cells = world.queue_cells[np.arange(len(spot)), spot].copy()  # full (-1): replaced below
         outward = world.queue_cells[:, 1] - world.queue_cells[:, 0]
@@ -311,14 +281,11 @@ class CentralizedPlanner(CentralPolicy):
     def _backlog(self, world, service: np.ndarray) -> np.ndarray:
         """Steps until each queue has served the agents already in it."""
         backlog = world.queue_count * service
-        members = world.queue_members[:, 0]
-        serving = members >= 0
-        if serving.any():
-            q = np.flatnonzero(serving)
-            a = members[q]
-            done = np.where(world.queue_is_cache[q], world.load_full - world.load[a], world.load[a])
-            rate = np.where(world.queue_is_cache[q], world.dropoff_ticks, world.gather_ticks)
-            backlog[q] -= done // rate
+        q = np.flatnonzero(world.queue_members[:, 0] >= 0)  # queues serving an agent now
+        a = world.queue_members[q, 0]
+        done = np.where(world.queue_is_cache[q], world.load_full - world.load[a], world.load[a])
+        rate = np.where(world.queue_is_cache[q], world.dropoff_ticks, world.gather_ticks)
+        backlog[q] -= done // rate
         return backlog
 
     def _finish_time(self, backlog: int, arrivals: list[int], service: int) -> int:
@@ -346,7 +313,8 @@ class CentralizedPlanner(CentralPolicy):
         inbound: list[list[int]] = [[] for _ in queues]
         for i, d in zip(slots, bound_dist):
             inbound[i].append(int(d))
-        finish = np.array([self._finish_time(backlog[q], inbound[i], service[q]) for i, q in enumerate(queues)])
+        finish = np.array([self._finish_time(backlog[q], inbound[i], service[q])
+                           for i, q in enumerate(queues)])
         if world.queue_is_cache[queues[0]]:
             base = np.zeros(len(queues))
         else:
@@ -362,8 +330,7 @@ class CentralizedPlanner(CentralPolicy):
             if not ok.any():
                 return
             cost = base + np.maximum(finish - closest_dist, 0)
-            order = np.lexsort((closest_dist, np.where(ok, cost, np.inf)))
-            i = order[0]
+            i = np.lexsort((closest_dist, np.where(ok, cost, np.inf)))[0]
             j = closest[i]
             q = queues[i]
             agent = agents[j]
@@ -376,17 +343,13 @@ class CentralizedPlanner(CentralPolicy):
 
     def _resource_capacity(self, world, queues: np.ndarray) -> np.ndarray:
         """How many more agents each resource queue may receive (finite: its units left)."""
-        res = world.queue_resource[queues]
-        remaining = world.resource_remaining[res]
+        remaining = world.resource_remaining[world.queue_resource[queues]]
         infinite = remaining < 0
-        promised = np.zeros(len(queues), dtype=np.int64)
-        for i, q in enumerate(queues):
-            members = world.queue_members[q]
-            members = members[members >= 0]
-            promised[i] = np.sum(world.load_full - world.load[members])
+        members = world.queue_members[queues]  # (Q, queue_len), -1: a free spot
+        promised = np.where(members >= 0, world.load_full - world.load[members], 0).sum(axis=1)
         left = remaining - promised
         units = -(-np.maximum(left, 0) // world.load_full)  # a partial unit still feeds one agent
-        assigned = np.array([np.count_nonzero(self.target == q) for q in queues], dtype=np.int64)
+        assigned = (self.target[None, :] == queues[:, None]).sum(axis=1)
         return np.where(infinite, len(self.target) + 1, units - assigned)
 
     def _update_assignments(self, world, targets: np.ndarray) -> None:
@@ -396,8 +359,7 @@ class CentralizedPlanner(CentralPolicy):
         target = self.target
         target[~free] = NO_TARGET  # joined a queue: the target is reached
         has_queue = target >= 0
-        is_cache = np.zeros_like(has_queue)
-        is_cache[has_queue] = world.queue_is_cache[target[has_queue]]
+        is_cache = has_queue & world.queue_is_cache[np.maximum(target, 0)]
         target[(has_queue & (is_cache != carrying)) | ((target == SPREAD) & carrying)] = NO_TARGET
         target[has_queue & is_cache] = NO_TARGET  # caches are re-chosen every step
         at_resource = np.flatnonzero((target >= 0) & ~is_cache)
@@ -483,7 +445,7 @@ class CentralizedPlanner(CentralPolicy):
         goal[spreading] = self.spread_cell[spreading]
         field_of = np.zeros(n, dtype=np.int64)
         for a in np.flatnonzero(has_queue | spreading):
-            field_of[a] = self._field((int(goal[a, 0]), int(goal[a, 1])))
+            field_of[a] = self._field(goal[a])
 
         offset = goal - world.pos
         near = has_queue & (np.abs(offset).sum(axis=1) <= 1)

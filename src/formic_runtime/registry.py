@@ -29,7 +29,7 @@ POLICY_NAMES = tuple(_POLICIES)
 DEFAULT_MODEL = Path(__file__).resolve().parents[2] / "models" / "formic_cpu.pt"
 
 # The world settings (WorldConfig fields) a policy's run needs, over the scenario's own: the
-# reference variants of C-SAF run as the authors' code did (formic_baselines.csaf docstring).
+# reference variants of C-SAF run as the authors' code did (docs/baselines.md).
 # Every run that builds its world from a scenario for a team applies them
 # (apply_world_overrides): formic sim, formic eval, formic run.
 _REFERENCE_CODE_WORLD = {"queue_len": 1, "agent_order": "id"}
