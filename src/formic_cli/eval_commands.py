@@ -6,26 +6,33 @@ from pathlib import Path
 
 import click
 
-from .summary import emit_json
+from .options import json_option
+from .summary import click_errors, emit
 
 DEFAULT_ALGORITHMS = "formic,planner,csaf,csaf11,cardinality"
 DEFAULT_SIZES, DEFAULT_TEAMS, DEFAULT_OBSTACLES = "128", "16,32,64,128", "0,0.05"
 DEFAULT_ENVS = "infinite,finite,wipeout"
 
 
-def _split(text: str, kind, option: str) -> list:
+def _split(text: str, kind, option: str, choices=None) -> list:
+    """The distinct values of a comma list option, each one of ``choices`` when given."""
     try:
-        values = [kind(v.strip()) for v in text.split(",") if v.strip()]
+        values = list(dict.fromkeys(kind(v.strip()) for v in text.split(",") if v.strip()))
     except ValueError as exc:
         raise click.BadParameter(f"{text!r}: {exc}", param_hint=option) from exc
     if not values:
         raise click.BadParameter("empty list", param_hint=option)
-    return list(dict.fromkeys(values))
+    unknown = [v for v in values if choices is not None and v not in choices]
+    if unknown:
+        raise click.BadParameter(f"unknown {', '.join(unknown)}; choose from {', '.join(choices)}",
+                                 param_hint=option)
+    return values
 
 
 @click.command("eval")
 @click.option("--algorithms", default=DEFAULT_ALGORITHMS, show_default=True,
-              help="Comma list of formic, planner, csaf, csaf11, cardinality, random, and the reference variants csaf-ref, csaf11-ref.")
+              help="Comma list of formic, planner, csaf, csaf11, cardinality, random, and the reference "
+                   "variants csaf-ref, csaf11-ref.")
 @click.option("--sizes", help=f"World sides, comma list [default: {DEFAULT_SIZES}].")
 @click.option("--teams", help=f"Team sizes, comma list [default: {DEFAULT_TEAMS}].")
 @click.option("--obstacles", help=f"Obstacle densities, comma list [default: {DEFAULT_OBSTACLES}].")
@@ -47,7 +54,7 @@ def _split(text: str, kind, option: str) -> list:
               help="Episodes run in parallel processes (1: in this process; fairest for timings).")
 @click.option("--report", "report_only", is_flag=True,
               help="Run nothing: rebuild results, figures and results.md from every episode in OUT.")
-@click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
+@json_option()
 @click.pass_context
 def eval_command(ctx, algorithms, sizes, teams, obstacles, envs, scenarios, seed, steps, out, model, greedy,
                  no_pheromones, workers, report_only, as_json) -> None:
@@ -57,65 +64,46 @@ def eval_command(ctx, algorithms, sizes, teams, obstacles, envs, scenarios, seed
         from formic_eval.runner import report_everything
 
         summary = report_everything(Path(out))
-        if as_json:
-            emit_json(summary)
-        else:
-            click.echo(f"report: {summary['files'].get('report', '(no episodes)')}")
+        emit(as_json, summary, f"report: {summary['files'].get('report', '(no episodes)')}")
         return
-    from formic_runtime.registry import POLICY_NAMES
     from formic_eval import evaluate, generate_matrix, load_matrix, settings_grid
     from formic_eval.matrix import ENVIRONMENTS
     from formic_eval.paper import PAPER_STEPS
+    from formic_eval.runner import EpisodeError
+    from formic_runtime.registry import POLICY_NAMES
     from formic_world import ScenarioError
 
-    names = _split(algorithms, str, "--algorithms")
-    unknown = [n for n in names if n not in POLICY_NAMES]
-    if unknown:
-        raise click.BadParameter(f"unknown {', '.join(unknown)}; choose from {', '.join(POLICY_NAMES)}",
-                                 param_hint="--algorithms")
+    names = _split(algorithms, str, "--algorithms", POLICY_NAMES)
     size_list = _split(sizes, int, "--sizes") if sizes else None
     team_list = _split(teams, int, "--teams") if teams else None
     obstacle_list = _split(obstacles, float, "--obstacles") if obstacles else None
-    env_list = _split(envs, str, "--env") if envs else None
-    bad_envs = [e for e in env_list or () if e not in ENVIRONMENTS]
-    if bad_envs:
-        raise click.BadParameter(f"unknown {', '.join(bad_envs)}; choose from {', '.join(ENVIRONMENTS)}",
-                                 param_hint="--env")
+    env_list = _split(envs, str, "--env", ENVIRONMENTS) if envs else None
 
     options = _policy_options(names, model, greedy, no_pheromones)
     out_dir = Path(out)
-    try:
+    with click_errors(ScenarioError, ValueError, prefix="scenarios: "):
         if scenarios.strip().isdigit():
             count = int(scenarios)
             if count < 1:
                 raise click.BadParameter("needs at least one scenario", param_hint="--scenarios")
-            grid = settings_grid(
-                size_list or _split(DEFAULT_SIZES, int, "--sizes"), team_list or _split(DEFAULT_TEAMS, int, "--teams"),
-                obstacle_list if obstacle_list is not None else _split(DEFAULT_OBSTACLES, float, "--obstacles"),
-                env_list or _split(DEFAULT_ENVS, str, "--env"), steps or PAPER_STEPS,
-            )
-            matrix = generate_matrix(grid, count, seed, out_dir / "scenarios")
-            source = str(out_dir / "scenarios")
+            grid = settings_grid(_split(sizes or DEFAULT_SIZES, int, "--sizes"),
+                                 _split(teams or DEFAULT_TEAMS, int, "--teams"),
+                                 _split(obstacles or DEFAULT_OBSTACLES, float, "--obstacles"),
+                                 _split(envs or DEFAULT_ENVS, str, "--env"), steps or PAPER_STEPS)
+            source = out_dir / "scenarios"
+            matrix = generate_matrix(grid, count, seed, source)
         elif Path(scenarios).is_dir():
-            matrix = load_matrix(Path(scenarios), size_list, team_list, obstacle_list, env_list, steps)
-            source = str(Path(scenarios))
+            source = Path(scenarios)
+            matrix = load_matrix(source, size_list, team_list, obstacle_list, env_list, steps)
         else:
             raise click.BadParameter(f"{scenarios!r} is neither a count nor a directory", param_hint="--scenarios")
-    except (ScenarioError, ValueError) as exc:
-        raise click.ClickException(f"scenarios: {exc}") from exc
     if not matrix:
         raise click.ClickException(f"no scenarios in {scenarios} match the selected settings")
-
-    from formic_eval.runner import EpisodeError
-
     try:
-        summary = evaluate(matrix, names, options, out_dir, workers=workers, source=source)
+        summary = evaluate(matrix, names, options, out_dir, workers=workers, source=str(source))
     except EpisodeError as exc:
         raise click.ClickException(f"episode failed ({exc}); finished episodes are kept, rerun to resume") from exc
-    if as_json:
-        emit_json(summary)
-    else:
-        _print_summary(summary)
+    emit(as_json, summary, _print_summary)
     if summary["interrupted"]:
         ctx.exit(130)
 
@@ -126,10 +114,10 @@ def _policy_options(names: list[str], model: str | None, greedy: bool, no_pherom
     from formic_eval import PolicyOptions
     from formic_eval.matrix import file_digest
 
-    if "formic" in names and not Path(model or DEFAULT_MODEL).exists():
+    model_path = Path(model or DEFAULT_MODEL)
+    if "formic" in names and not model_path.exists():
         raise click.ClickException(
-            f"formic: no model at {model or DEFAULT_MODEL}: train one with `formic train` or pass --model"
-        )
+            f"formic: no model at {model or DEFAULT_MODEL}: train one with `formic train` or pass --model")
     for name in names:
         try:
             make_policy(name, model=model, greedy=greedy)
@@ -141,8 +129,8 @@ def _policy_options(names: list[str], model: str | None, greedy: bool, no_pherom
             raise click.ClickException(f"{name}: cannot build the policy: {type(exc).__name__}: {exc}") from exc
     if "formic" not in names:
         return PolicyOptions(greedy=greedy, no_pheromones=no_pheromones)
-    path = str(Path(model) if model else DEFAULT_MODEL)
-    return PolicyOptions(model=path, model_digest=file_digest(path), greedy=greedy, no_pheromones=no_pheromones)
+    return PolicyOptions(model=str(model_path), model_digest=file_digest(str(model_path)), greedy=greedy,
+                         no_pheromones=no_pheromones)
 
 
 def _print_summary(summary: dict) -> None:

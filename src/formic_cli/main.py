@@ -9,8 +9,9 @@ from pathlib import Path
 
 import click
 
-from .options import open_live_view, scenario_from, team_options, view_options, world_config_from, world_options
-from .summary import emit_json, print_episode_summary
+from .options import (fresh_option, json_option, model_option, open_live_view, preset_option, scenario_from,
+                      team_options, view_options, world_config_from, world_options)
+from .summary import click_errors, emit, emit_json, print_episode_summary
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
@@ -19,7 +20,6 @@ def cli() -> None:
     """ForMIC: multi-agent foraging with learned pheromone communication."""
 
 
-# ----------------------------------------------------------------------------------- sim
 @cli.command()
 @world_options
 @team_options
@@ -27,9 +27,12 @@ def cli() -> None:
               help="Where the final picture (and --gif) go.")
 @click.option("--gif", is_flag=True, help="Also write an animation of the episode.")
 @view_options()
-@click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
-def sim(policy, model, greedy, scenario_file, out, gif, live_view, view_port, view_wait, as_json, **world_kw) -> None:
+@json_option()
+def sim(policy, model, greedy, scenario_file, out, gif, live_view, view_port, view_wait, as_json,
+        **world_kw) -> None:
     """One episode in one process, no ROS (the same result as `formic run`)."""
+    from contextlib import nullcontext
+
     from formic_runtime.episode import run_episode
     from formic_runtime.registry import world_overrides
     from formic_runtime.team import Team
@@ -47,16 +50,11 @@ def sim(policy, model, greedy, scenario_file, out, gif, live_view, view_port, vi
         if view is not None:
             view.publish(w, final=w.done)
 
-    try:  # in the world the team needs (one-slot queues for csaf-ref), over the scenario's own
+    with click_errors(FileNotFoundError, ValueError), view if view is not None else nullcontext():
+        # in the world the team needs (one-slot queues for csaf-ref), over the scenario's own
         overrides = world_overrides(Team.parse(policy, scenario.config.n_agents).names)
         result = run_episode(scenario, policy, model=model, greedy=greedy,
                              on_step=on_step if gif or view is not None else None)
-    except (FileNotFoundError, ValueError) as exc:
-        raise click.ClickException(str(exc)) from exc
-    finally:
-        if view is not None:
-            view.close()
-    scenario = result.world.scenario
     out_dir = Path(out)
     out_dir.mkdir(parents=True, exist_ok=True)
     picture = out_dir / "final.png"
@@ -65,19 +63,18 @@ def sim(policy, model, greedy, scenario_file, out, gif, live_view, view_port, vi
     if gif:
         files["animation"] = str(out_dir / "episode.gif")
         render_frames_to_file(frames, files["animation"])
-    summary = result.summary(scenario, policy)
+    summary = result.summary(result.world.scenario, policy)
     if overrides:
         summary["world_overrides"] = overrides
     summary["files"] = files
     if as_json:
         emit_json(summary)
-    else:
-        print_episode_summary(summary)
-        if overrides:
-            click.echo("world settings of this team: " + ", ".join(f"{k}={v!r}" for k, v in overrides.items()))
+        return
+    print_episode_summary(summary)
+    if overrides:
+        click.echo("world settings of this team: " + ", ".join(f"{k}={v!r}" for k, v in overrides.items()))
 
 
-# ----------------------------------------------------------------------------- scenarios
 @cli.group()
 def scenarios() -> None:
     """Generate and inspect stored scenario sets."""
@@ -87,31 +84,26 @@ def scenarios() -> None:
 @world_options
 @click.option("--count", default=50, show_default=True, help="Scenarios in the set (seeds seed..seed+count-1).")
 @click.option("--out", type=click.Path(file_okay=False), required=True, help="Directory for the set.")
-@click.option("--json", "as_json", is_flag=True)
+@json_option(help=None)
 def scenarios_generate(count, out, as_json, **world_kw) -> None:
     """Write COUNT scenarios for one size/team/obstacle setting as plain JSON files."""
     from formic_world.scenario_sets import generate_set
 
-    config, seed = world_config_from(world_kw)
-    paths = generate_set(config, seed, count, Path(out))
-    if as_json:
-        emit_json({"directory": out, "files": [str(p) for p in paths]})
-    else:
-        click.echo(f"wrote {len(paths)} scenarios to {out}")
+    paths = generate_set(*world_config_from(world_kw), count, Path(out))
+    emit(as_json, {"directory": out, "files": [str(p) for p in paths]},
+         f"wrote {len(paths)} scenarios to {out}")
 
 
 @scenarios.command("show")
 @click.argument("path", type=click.Path(exists=True))
-@click.option("--json", "as_json", is_flag=True)
+@json_option(help=None)
 def scenarios_show(path, as_json) -> None:
     """Describe a scenario file or a directory of them (and check they load)."""
     from formic_world import ScenarioError
     from formic_world.scenario_sets import describe, load_set
 
-    try:
+    with click_errors(ScenarioError):
         items = load_set(Path(path))
-    except ScenarioError as exc:
-        raise click.ClickException(str(exc)) from exc
     rows = [describe(s) | {"file": str(p)} for p, s in items]
     if as_json:
         emit_json({"scenarios": rows})
@@ -124,7 +116,6 @@ def scenarios_show(path, as_json) -> None:
         )
 
 
-# -------------------------------------------------------------------------------- render
 @cli.command()
 @click.argument("source", type=click.Path(exists=True))
 @click.option("--out", type=click.Path(), help="Output file (.png, .gif or .mp4).")
@@ -137,21 +128,16 @@ def render(source, out, scale, fps) -> None:
 
     src = Path(source)
     if src.is_file() and src.suffix == ".json":
-        world = World(Scenario.load(src))
         target = Path(out or src.with_suffix(".png"))
-        save_png(render_frame(world, scale=scale), target)
-        click.echo(f"wrote {target}")
-        return
-    try:
-        from formic_record.replay import render_recording
-    except ImportError as exc:
-        raise click.ClickException(f"cannot render recordings: {exc}") from exc
-    target = Path(out or (src.with_suffix(".mp4") if src.is_file() else src / "replay.mp4"))
-    render_recording(src, target, scale=scale, fps=fps)
+        save_png(render_frame(World(Scenario.load(src)), scale=scale), target)
+    else:
+        with click_errors(ImportError, prefix="cannot render recordings: "):
+            from formic_record.replay import render_recording
+        target = Path(out or (src.with_suffix(".mp4") if src.is_file() else src / "replay.mp4"))
+        render_recording(src, target, scale=scale, fps=fps)
     click.echo(f"wrote {target}")
 
 
-# --------------------------------------------------------------------------------- bench
 @cli.group()
 def bench() -> None:
     """Throughput benchmarks (run them on a quiet machine)."""
@@ -162,7 +148,7 @@ def bench() -> None:
 @click.option("--teams", default="16,32,64,128", show_default=True)
 @click.option("--steps", default=512, show_default=True)
 @click.option("--seed", default=0, show_default=True)
-@click.option("--json", "as_json", is_flag=True)
+@json_option(help=None)
 def bench_world(size, teams, steps, seed, as_json) -> None:
     """Steps/s and agent-steps/s of the core with random valid actions, observations included."""
     from formic_world.bench import bench_world as run
@@ -173,7 +159,8 @@ def bench_world(size, teams, steps, seed, as_json) -> None:
         return
     click.echo(f"world {size}x{size}, {steps} steps, random valid actions, observations included")
     for r in results:
-        click.echo(f"  {r['agents']:4d} agents: {r['steps_per_s']:9.0f} steps/s  {r['agent_steps_per_s']:11.0f} agent-steps/s")
+        click.echo(f"  {r['agents']:4d} agents: {r['steps_per_s']:9.0f} steps/s  "
+                   f"{r['agent_steps_per_s']:11.0f} agent-steps/s")
 
 
 @bench.command("policy")
@@ -181,7 +168,7 @@ def bench_world(size, teams, steps, seed, as_json) -> None:
 @click.option("--batch", default=128, show_default=True, help="Agents per inference batch.")
 @click.option("--threads", default=2, show_default=True)
 @click.option("--episodes", default=1, show_default=True, help="Training episode sets to time end to end.")
-@click.option("--json", "as_json", is_flag=True)
+@json_option(help=None)
 def bench_policy(network, batch, threads, episodes, as_json) -> None:
     """Inference agent-steps/s and end-to-end training agent-steps/s."""
     from formic_trainer.bench import bench_policy as run
@@ -200,9 +187,9 @@ def bench_policy(network, batch, threads, episodes, as_json) -> None:
 @click.option("--steps", default=50, show_default=True)
 @click.option("--seed", default=0, show_default=True)
 @click.option("--policy", default="formic", show_default=True, help="Team spec (the shipped model for formic).")
-@click.option("--model", type=click.Path(dir_okay=False), help="Checkpoint for the formic policy.")
+@model_option
 @click.option("--threads", default=1, show_default=True, help="Torch threads (0: torch's default pool).")
-@click.option("--json", "as_json", is_flag=True)
+@json_option(help=None)
 def bench_decide(size, teams, steps, seed, policy, model, threads, as_json) -> None:
     """In-process decision time per step (as `formic sim` runs) for each team size."""
     from formic_runtime.episode import run_episode
@@ -226,13 +213,12 @@ def bench_decide(size, teams, steps, seed, policy, model, threads, as_json) -> N
                    f"world {r['world_ms_per_step']:6.2f} ms/step")
 
 
-# --------------------------------------------------------------------------------- train
 @cli.command()
-@click.option("--preset", default="cpu", show_default=True, type=click.Choice(["cpu", "paper"]))
+@preset_option
 @click.option("--run-dir", type=click.Path(file_okay=False), default="runs/formic", show_default=True)
 @click.option("--episodes", type=int, help="Environment episodes to add in this call.")
 @click.option("--minutes", type=float, help="Stop after this many minutes (checkpoint kept).")
-@click.option("--fresh", is_flag=True, help="Ignore an existing checkpoint in --run-dir.")
+@fresh_option
 @click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE",
               help="Override a training field, e.g. --set network=cpu-nest --set pheromones=false.")
 @click.option("--export", type=click.Path(dir_okay=False),
@@ -244,10 +230,8 @@ def train(preset, run_dir, episodes, minutes, fresh, overrides, export) -> None:
     from formic_trainer.config import make_config, parse_overrides
     from formic_trainer.train import Trainer, export_model
 
-    try:
+    with click_errors(TypeError, ValueError):
         cfg = make_config(preset, **parse_overrides(overrides))
-    except (TypeError, ValueError) as exc:
-        raise click.ClickException(str(exc)) from exc
     if episodes != 0:
         Trainer(cfg, Path(run_dir), resume=not fresh, log=click.echo).train(episodes=episodes, minutes=minutes)
     if export:

@@ -1,4 +1,5 @@
-"""Options shared by the commands: the world (sim, run, eval, scenarios) and the team (sim, run)."""
+"""Options shared by the commands: the world and the team (sim, run, world, scenarios), the live
+view, ROS (namespace, domain, network) and ``--json``."""
 
 from __future__ import annotations
 
@@ -6,6 +7,12 @@ import click
 
 from formic_view import DEFAULT_HOST, DEFAULT_PORT
 from formic_world import WorldConfig
+
+from .summary import click_errors
+
+NAMESPACE_HELP = "ROS namespace of the ForMIC topics and nodes."
+RUN_DOMAIN_HELP = "ROS_DOMAIN_ID for this run (default: the environment's, else 0)."
+PROCESS_DOMAIN_HELP = "ROS_DOMAIN_ID for this process (default: the environment's)."
 
 
 def option_group(*options):
@@ -19,61 +26,99 @@ def option_group(*options):
     return decorate
 
 
-# --agents --size --steps --seed --obstacles --resources --wipeouts --variant --view-size
-# --no-pheromones --timing
-world_options = option_group(
-        click.option("--agents", default=32, show_default=True, help="Team size."),
-        click.option("--size", default=128, show_default=True, help="World side (square)."),
-        click.option("--steps", default=512, show_default=True, help="Episode length."),
-        click.option("--seed", default=0, show_default=True, help="Scenario seed."),
-        click.option("--obstacles", default=0.0, show_default=True, help="Obstacle density."),
-        click.option("--resources", type=click.Choice(["infinite", "finite"]), default="infinite",
-                     show_default=True, help="Resource capacity."),
-        click.option("--wipeouts", default=0, show_default=True, help="Pheromone wipeouts of 100 steps."),
-        click.option("--variant", type=click.Choice(["standard", "flat", "noisy", "random"]),
-                     default="standard", show_default=True, help="Pheromone variant."),
-        click.option("--view-size", default=11, show_default=True, help="Observation window (5, 11, 21)."),
-        click.option("--no-pheromones", is_flag=True, help="Agents see an empty pheromone channel."),
-        click.option("--timing", type=click.Choice(["reference", "nominal"]), default="reference",
-                     show_default=True, help="Service timing (SPEC §1): the reference code's (a load "
-                     "takes 11 steps; a queue that moves up serves nobody that step) or exactly 1/rate."),
-)
+def json_option(help: str | None = "Print one JSON object."):
+    return click.option("--json", "as_json", is_flag=True, help=help)
 
+
+def domain_option(help: str = RUN_DOMAIN_HELP):
+    return click.option("--domain-id", type=int, help=help)
+
+
+def ros_options(domain_help: str = RUN_DOMAIN_HELP):
+    """--namespace and --domain-id."""
+    namespace = click.option("--namespace", default="/formic", show_default=True, help=NAMESPACE_HELP)
+    return option_group(namespace, domain_option(domain_help))
+
+
+# The world options' parameter names are WorldConfig's fields, except --size, --seed and
+# --no-pheromones (see world_config_from).
+world_options = option_group(
+    click.option("--agents", "n_agents", default=32, show_default=True, help="Team size."),
+    click.option("--size", default=128, show_default=True, help="World side (square)."),
+    click.option("--steps", "episode_steps", default=512, show_default=True, help="Episode length."),
+    click.option("--seed", default=0, show_default=True, help="Scenario seed."),
+    click.option("--obstacles", "obstacle_density", default=0.0, show_default=True, help="Obstacle density."),
+    click.option("--resources", "capacity", type=click.Choice(["infinite", "finite"]), default="infinite",
+                 show_default=True, help="Resource capacity."),
+    click.option("--wipeouts", default=0, show_default=True, help="Pheromone wipeouts of 100 steps."),
+    click.option("--variant", "pheromone_variant", type=click.Choice(["standard", "flat", "noisy", "random"]),
+                 default="standard", show_default=True, help="Pheromone variant."),
+    click.option("--view-size", default=11, show_default=True, help="Observation window (5, 11, 21)."),
+    click.option("--no-pheromones", is_flag=True, help="Agents see an empty pheromone channel."),
+    click.option("--timing", type=click.Choice(["reference", "nominal"]), default="reference",
+                 show_default=True, help="Service timing (SPEC §1): the reference code's (a load "
+                 "takes 11 steps; a queue that moves up serves nobody that step) or exactly 1/rate."),
+)
+WORLD_FIELDS = ("n_agents", "episode_steps", "obstacle_density", "capacity", "wipeouts", "pheromone_variant",
+                "view_size", "timing")
+WORLD_OPTION_NAMES = (*WORLD_FIELDS, "size", "seed", "no_pheromones")
+
+model_option = click.option("--model", type=click.Path(dir_okay=False),
+                            help="Checkpoint for the formic policy.")
+greedy_option = click.option("--greedy", is_flag=True, help="Learned agents take the most likely action.")
 team_options = option_group(
     click.option("--policy", default="formic", show_default=True,
                  help="Policy for all agents, or a mix such as formic:0-31,csaf11:32-63."),
-    click.option("--model", type=click.Path(dir_okay=False), help="Checkpoint for the formic policy."),
-    click.option("--greedy", is_flag=True, help="Learned agents take the most likely action."),
+    model_option,
+    greedy_option,
     click.option("--scenario", "scenario_file", type=click.Path(exists=True, dir_okay=False),
                  help="Run a stored scenario (its configuration wins over world options)."),
 )
 
+# the training commands' (train, train-ros, trainer)
+preset_option = click.option("--preset", default="cpu", show_default=True,
+                             type=click.Choice(["cpu", "paper"]))
+fresh_option = click.option("--fresh", is_flag=True, help="Ignore an existing checkpoint in --run-dir.")
+train_config_option = click.option(
+    "--train-config", type=click.Path(exists=True, dir_okay=False),
+    help="Start from this training configuration (a run directory's config.json) instead of --preset.")
+ros_run_dir_option = click.option(
+    "--run-dir", type=click.Path(file_okay=False), default="runs/formic-ros", show_default=True,
+    help="Checkpoints (latest.pt) and TensorBoard logs; resumed unless --fresh.")
 
-WORLD_OPTION_NAMES = ("agents", "size", "steps", "seed", "obstacles", "resources", "wipeouts",
-                      "variant", "view_size", "no_pheromones", "timing")
+
+def training_config(preset: str, config_file: str | None, overrides: tuple[str, ...]):
+    """``--preset`` (or a stored ``--train-config``) with ``--set`` overrides on top."""
+    import dataclasses
+
+    from formic_trainer.config import make_config, parse_overrides
+
+    if config_file:
+        from formic_trainer.config import load_train_config
+
+        return dataclasses.replace(load_train_config(config_file), **parse_overrides(overrides))
+    return make_config(preset, **parse_overrides(overrides))
 
 
 def scenario_from(scenario_file: str | None, world_kw: dict):
-    """The stored scenario, or one generated from the world options."""
+    """The stored scenario, or one generated from the world options (popped from a command's
+    kwargs either way)."""
     from formic_world import Scenario, generate_scenario
 
-    return Scenario.load(scenario_file) if scenario_file else generate_scenario(*world_config_from(world_kw))
+    world = {name: world_kw.pop(name) for name in WORLD_OPTION_NAMES}
+    return Scenario.load(scenario_file) if scenario_file else generate_scenario(*world_config_from(world))
 
 
 def world_config_from(kwargs: dict) -> tuple[WorldConfig, int]:
     """Pop the world options out of a command's kwargs; returns (config, seed)."""
-    values = {name: kwargs.pop(name) for name in WORLD_OPTION_NAMES}
+    fields = {name: kwargs.pop(name) for name in WORLD_FIELDS}
+    size, seed = kwargs.pop("size"), kwargs.pop("seed")
     try:
-        config = WorldConfig(
-            height=values["size"], width=values["size"], n_agents=values["agents"],
-            episode_steps=values["steps"], obstacle_density=values["obstacles"],
-            capacity=values["resources"], wipeouts=values["wipeouts"],
-            pheromone_variant=values["variant"], view_size=values["view_size"],
-            pheromones_visible=not values["no_pheromones"], timing=values["timing"],
-        )
+        config = WorldConfig(height=size, width=size, pheromones_visible=not kwargs.pop("no_pheromones"),
+                             **fields)
     except ValueError as exc:
         raise click.BadParameter(str(exc)) from exc
-    return config, values["seed"]
+    return config, seed
 
 
 def view_options(wait: bool = True):
@@ -96,10 +141,8 @@ def open_live_view(port: int, wait: bool = False):
     with ``wait``, return once a viewer has subscribed."""
     from formic_view import LiveView, announcement
 
-    try:
+    with click_errors(OSError):
         view = LiveView(port=port)
-    except OSError as exc:
-        raise click.ClickException(str(exc)) from exc
     click.echo(announcement(view.url), err=True)
     if wait:
         click.echo("live view: waiting for a viewer to subscribe (Ctrl-C to give up)", err=True)

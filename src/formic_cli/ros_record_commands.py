@@ -9,11 +9,10 @@ from pathlib import Path
 
 import click
 
-from .options import hosts_network_option, open_live_view, view_options
-from .summary import emit_json
-
-NAMESPACE_HELP = "ROS namespace of the ForMIC topics and nodes."
-DOMAIN_HELP = "ROS_DOMAIN_ID for this process (default: the environment's)."
+from .options import (PROCESS_DOMAIN_HELP, domain_option, fresh_option, hosts_network_option, json_option,
+                      open_live_view, preset_option, ros_options, ros_run_dir_option, train_config_option,
+                      training_config, view_options)
+from .summary import click_errors, emit, emit_json
 
 _AGENT_PART = re.compile(r"(?<=/)agent_\d+(?=/|$)")
 
@@ -30,10 +29,9 @@ def grouped_topic_lines(counts: dict[str, int]) -> list[str]:
         else:
             groups.setdefault(pattern, []).append(count)
     for pattern, values in sorted(groups.items()):
-        lines.append(f"{pattern} ({len(values)} topics): {min(values)}-{max(values)} each"
-                     if min(values) != max(values) else f"{pattern} ({len(values)} topics): {values[0]} each")
+        each = f"{min(values)}-{max(values)}" if min(values) != max(values) else values[0]
+        lines.append(f"{pattern} ({len(values)} topics): {each} each")
     return lines
-
 
 
 def _log(text: str) -> None:
@@ -44,21 +42,19 @@ def _split(values: tuple[str, ...]) -> tuple[str, ...]:
     return tuple(t.strip() for v in values for t in v.split(",") if t.strip())
 
 
-# -------------------------------------------------------------------------------- record
 @click.command("record")
 @hosts_network_option
 @click.option("--out", required=True, type=click.Path(file_okay=False),
               help="Recording directory to create (rosbag2 with MCAP storage).")
 @click.option("--topics", multiple=True, metavar="TOPIC[,TOPIC]",
               help="Absolute topic names to record (default: every topic in the namespace, and /clock).")
-@click.option("--namespace", default="/formic", show_default=True, help=NAMESPACE_HELP)
-@click.option("--domain-id", type=int, help=DOMAIN_HELP)
+@ros_options(domain_help=PROCESS_DOMAIN_HELP)
 @click.option("--model", type=click.Path(exists=True, dir_okay=False),
               help="Checkpoint the learned agents run: its id is stored with the recording.")
 @click.option("--duration", type=float, help="Stop after this many seconds (default: at Ctrl-C or SIGTERM).")
 @click.option("--chunk-kb", default=256, show_default=True,
               help="MCAP chunk size; a killed recorder loses at most its last chunk (or 0.5 s).")
-@click.option("--json", "as_json", is_flag=True, help="Print one JSON object at the end.")
+@json_option(help="Print one JSON object at the end.")
 def record_command(out, topics, namespace, domain_id, model, duration, chunk_kb, as_json) -> None:
     """Record ForMIC topics into a rosbag2 recording (MCAP) until interrupted."""
     from formic_agent.checkpoint import checkpoint_id
@@ -68,11 +64,9 @@ def record_command(out, topics, namespace, domain_id, model, duration, chunk_kb,
         raise click.ClickException(f"{out} exists; a recording is never written over")
     options = RecorderOptions(namespace=namespace, topics=_split(topics),
                               checkpoint_id=checkpoint_id(model) if model else "", chunk_bytes=chunk_kb * 1024)
-    try:
+    with click_errors(ValueError):
         result = record(out, options, domain_id=domain_id, duration_s=duration,
                         on_ready=lambda node: _log(f"recording to {out} (Ctrl-C to stop)"))
-    except ValueError as exc:
-        raise click.ClickException(str(exc)) from exc
     if as_json:
         emit_json(result)
         return
@@ -83,7 +77,6 @@ def record_command(out, topics, namespace, domain_id, model, duration, chunk_kb,
         click.echo(f"  not recorded: {topic} ({why})")
 
 
-# -------------------------------------------------------------------------------- replay
 @click.command("replay")
 @click.argument("recording", type=click.Path(exists=True))
 @click.option("--verify", is_flag=True, help="Re-simulate from the scenario and applied actions; every "
@@ -97,8 +90,8 @@ def record_command(out, topics, namespace, domain_id, model, duration, chunk_kb,
 @click.option("--topics", multiple=True, metavar="TOPIC[,TOPIC]", help="--republish only these topics.")
 @click.option("--wait", default=1.0, show_default=True,
               help="--republish starts once every topic has a subscriber, or after this many seconds.")
-@click.option("--domain-id", type=int, help=DOMAIN_HELP)
-@click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
+@domain_option(help=PROCESS_DOMAIN_HELP)
+@json_option()
 def replay_command(recording, verify, republish, repair, live_view, view_port, view_wait, rate, topics, wait,
                    domain_id, as_json) -> None:
     """Verify, republish, view or repair a recording (without a mode: describe it)."""
@@ -106,53 +99,38 @@ def replay_command(recording, verify, republish, repair, live_view, view_port, v
 
     if verify + republish + repair + live_view > 1:
         raise click.UsageError("choose one of --verify, --republish, --view, --repair")
-    try:
+    with click_errors(RecordingError, ValueError, OSError):
         if live_view:
             from formic_record.replay import view_recording
 
-            view = open_live_view(view_port, wait=view_wait)
-            try:
+            with open_live_view(view_port, wait=view_wait) as view:
                 steps = view_recording(recording, view, rate=rate)
-            finally:
-                view.close()
-            if as_json:
-                emit_json({"recording": str(recording), "steps": steps, "view": view.url})
-            else:
-                click.echo(f"showed {steps} steps of {recording} on {view.url}")
+            emit(as_json, {"recording": str(recording), "steps": steps, "view": view.url},
+                 f"showed {steps} steps of {recording} on {view.url}")
         elif repair:
             report = repair_recording(recording)
-            result = {"repaired": report.repaired, "messages": report.messages,
-                      "kept": str(report.kept) if report.kept else None, "note": report.note,
-                      "corrupted": report.corrupted, "dropped": report.dropped}
-            if as_json:
-                emit_json(result)
-            else:
-                click.echo(report.note)
+            emit(as_json, {"repaired": report.repaired, "messages": report.messages,
+                           "kept": str(report.kept) if report.kept else None, "note": report.note,
+                           "corrupted": report.corrupted, "dropped": report.dropped}, report.note)
         elif verify:
             from formic_record.replay import verify_recording
 
             report = verify_recording(recording)
-            if as_json:
-                emit_json(report.to_dict())
-            else:
-                click.echo(report.summary())
+            emit(as_json, report.to_dict(), report.summary())
             if not report.ok:
                 sys.exit(1)
         elif republish:
             from formic_ros.recorder import republish as play
 
             result = play(recording, rate=rate, domain_id=domain_id, topics=_split(topics), wait_s=wait, log=_log)
-            if as_json:
-                emit_json(result)
-            else:
-                click.echo(f"republished {result['messages']} messages on {len(result['topics'])} topics "
-                           f"in {result['seconds']:.1f} s")
+            emit(as_json, result, f"republished {result['messages']} messages on "
+                 f"{len(result['topics'])} topics in {result['seconds']:.1f} s")
         else:
             rec = Recording(recording)
             if as_json:
+                topics = {t: {"type": i.msgtype, "messages": i.count} for t, i in rec.topics.items()}
                 emit_json({"file": str(rec.mcap_path), "complete": rec.complete, "streamed": rec.streamed,
-                       "problem": rec.problem, "run_info": rec.run_info,
-                       "topics": {t: {"type": i.msgtype, "messages": i.count} for t, i in rec.topics.items()}})
+                           "problem": rec.problem, "run_info": rec.run_info, "topics": topics})
                 return
             click.echo(rec.describe())
             for topic, info in sorted(rec.topics.items()):
@@ -160,56 +138,32 @@ def replay_command(recording, verify, republish, repair, live_view, view_port, v
             for key in ("seed", "config_digest", "policies", "checkpoint_id", "package_version"):
                 if key in rec.run_info:
                     click.echo(f"  {key}: {rec.run_info[key]}")
-    except (RecordingError, ValueError, OSError) as exc:
-        raise click.ClickException(str(exc)) from exc
-
-
-# ------------------------------------------------------------------------------- trainer
-def training_config(preset: str, config_file: str | None, overrides: tuple[str, ...]):
-    """``--preset`` (or a stored ``--train-config``) with ``--set`` overrides on top."""
-    import dataclasses
-
-    from formic_trainer.config import make_config, parse_overrides
-
-    if config_file:
-        from formic_trainer.config import load_train_config
-
-        return dataclasses.replace(load_train_config(config_file), **parse_overrides(overrides))
-    return make_config(preset, **parse_overrides(overrides))
 
 
 @click.command("trainer")
 @hosts_network_option
-@click.option("--preset", default="cpu", show_default=True, type=click.Choice(["cpu", "paper"]))
-@click.option("--run-dir", type=click.Path(file_okay=False), default="runs/formic-ros", show_default=True,
-              help="Checkpoints (latest.pt) and TensorBoard logs; resumed unless --fresh.")
-@click.option("--fresh", is_flag=True, help="Ignore an existing checkpoint in --run-dir.")
-@click.option("--train-config", type=click.Path(exists=True, dir_okay=False),
-              help="Start from this training configuration (a run directory's config.json) instead of --preset.")
+@preset_option
+@ros_run_dir_option
+@fresh_option
+@train_config_option
 @click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE", help="Override a training field.")
 @click.option("--max-updates", type=int, help="Stop after this many updates (default: at Ctrl-C or SIGTERM).")
 @click.option("--max-rollouts", type=int, help="Stop after this many rollouts, learned from or dropped.")
 @click.option("--max-lag", default=4, show_default=True,
               help="Learn from rollouts at most this many weights versions old; drop older ones.")
-@click.option("--namespace", default="/formic", show_default=True, help=NAMESPACE_HELP)
-@click.option("--domain-id", type=int, help=DOMAIN_HELP)
-@click.option("--json", "as_json", is_flag=True, help="Print one JSON object at the end.")
+@ros_options(domain_help=PROCESS_DOMAIN_HELP)
+@json_option(help="Print one JSON object at the end.")
 def trainer_command(preset, run_dir, fresh, train_config, overrides, max_updates, max_rollouts, max_lag, namespace,
                     domain_id, as_json) -> None:
     """The trainer node: learn from the hosts' rollouts, broadcast versioned weights."""
     from formic_ros.trainer_node import serve_trainer
 
-    try:
+    with click_errors(TypeError, ValueError):
         cfg = training_config(preset, train_config, overrides)
         result = serve_trainer(cfg, Path(run_dir), resume=not fresh, namespace=namespace, domain_id=domain_id,
                                max_updates=max_updates, max_rollouts=max_rollouts, max_lag=max_lag, log=_log)
-    except (TypeError, ValueError) as exc:
-        raise click.ClickException(str(exc)) from exc
-    if as_json:
-        emit_json(result)
-    else:
-        click.echo(f"trainer stopped at weights version {result['version']} ({result['updates']} updates here, "
-                   f"{result['dropped']} rollouts dropped); checkpoint in {run_dir}/latest.pt")
+    emit(as_json, result, f"trainer stopped at weights version {result['version']} ({result['updates']} "
+         f"updates here, {result['dropped']} rollouts dropped); checkpoint in {run_dir}/latest.pt")
 
 
 def register(cli: click.Group) -> None:

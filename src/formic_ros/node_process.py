@@ -14,7 +14,7 @@ import json
 import sys
 from pathlib import Path
 
-from formic_cli.summary import emit_json as emit  # what `formic world --json` prints
+from formic_runtime.json_output import emit_json as emit  # what `formic world --json` prints
 
 
 def log(text: str) -> None:
