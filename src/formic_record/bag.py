@@ -1,6 +1,6 @@
-"""Recordings on disk (written here, read and repaired by :mod:`formic_record.reading`): rosbag2 directories with MCAP storage, written, read and repaired
-without rclpy, so the files are exactly what ROS-free tools (Foxglove, ``mcap``,
-``mcap-ros2-support``, ``rosbags``) read.
+"""Recordings on disk: rosbag2 directories with MCAP storage, written here (read and repaired
+by :mod:`formic_record.reading`) without rclpy, so the files are exactly what ROS-free tools
+(Foxglove, ``mcap``, ``mcap-ros2-support``, ``rosbags``) read.
 
 A recording is ``DIR/metadata.yaml`` beside ``DIR/DIR.mcap`` (profile ``ros2``, schema
 encoding ``ros2msg``, message encoding ``cdr``), as ``ros2 bag record -s mcap`` writes it.
@@ -17,6 +17,7 @@ import os
 import sys
 import time
 from collections.abc import Iterable, Mapping
+from contextlib import AbstractContextManager
 from functools import partial
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
@@ -112,11 +113,8 @@ class _ChunkedMcapStorage:
 
     def flush_if_due(self) -> None:
         if time.monotonic() - self._last_flush >= self._flush_seconds:
-            self.flush()
-
-    def flush(self) -> None:
-        self._mcap.flush()  # ends the chunk in progress and flushes the file
-        self._last_flush = time.monotonic()
+            self._mcap.flush()  # ends the chunk in progress and flushes the file
+            self._last_flush = time.monotonic()
 
     def add_metadata(self, name: str, data: Mapping[str, str]) -> None:
         self._mcap.add_metadata(name, dict(data))
@@ -131,7 +129,7 @@ class _ChunkedMcapStorage:
         self._file.close()
 
 
-class BagWriter:
+class BagWriter(AbstractContextManager):
     """A rosbag2 (MCAP) recording being written: topics are added as they are discovered and
     messages are written as the CDR bytes they arrived as."""
 
@@ -171,9 +169,6 @@ class BagWriter:
     def close(self) -> None:
         if self._writer.storage is not None:
             self._writer.close()
-
-    def __enter__(self) -> "BagWriter":
-        return self
 
     def __exit__(self, *exc) -> None:
         self.close()

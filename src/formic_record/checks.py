@@ -15,7 +15,6 @@ import numpy as np
 from formic_world import World
 from formic_world.geometry import CACHE, RESOURCE
 
-N_ACTIONS = 5
 ENCODING_FLOAT32, ENCODING_COMPACT = 0, 1
 _ONE = np.float32(1.0).view(np.uint32)
 
@@ -54,12 +53,14 @@ def _field(name: str, recorded, expected, dtype) -> str | None:
     return f"{name}[{where}]: recorded {r[where]!r}, expected {e[where]!r}"
 
 
+def _fields(fields) -> str | None:
+    """The first of ``(name, recorded, expected, dtype)`` fields that differs."""
+    return next(filter(None, (_field(*f) for f in fields)), None)
+
+
 def _scalars(pairs) -> str | None:
-    for name, recorded, expected, dtype in pairs:
-        problem = _field(name, [recorded], [expected], dtype)
-        if problem:
-            return problem.replace("[0]", "")
-    return None
+    problem = _fields((name, [recorded], [expected], dtype) for name, recorded, expected, dtype in pairs)
+    return problem and problem.replace("[0]", "")
 
 
 def decode_compact(nonzero_bits, one_bits, other_values, shape: tuple[int, ...]) -> np.ndarray:
@@ -132,11 +133,7 @@ def check_observation_batch(msg, world: World) -> str | None:
               ("rows", msg.rows, world.pos[ids, 0], np.int32), ("cols", msg.cols, world.pos[ids, 1], np.int32)]
     if len(msg.train_masks):
         fields.append(("train_masks", msg.train_masks, world.training_action_mask(result.action_mask)[ids], np.uint8))
-    for name, recorded, expected, dtype in fields:
-        problem = _field(name, recorded, expected, dtype)
-        if problem:
-            return problem
-    return None
+    return _fields(fields)
 
 
 def check_state(msg, world: World) -> str | None:
@@ -144,12 +141,8 @@ def check_state(msg, world: World) -> str | None:
     digest = world.state_digest()
     if msg.state_digest != digest:
         return f"state_digest: recorded {msg.state_digest}, re-simulated {digest}"
-    problem = _scalars([("step", msg.step, world.t, np.uint32), ("height", msg.height, height, np.uint16),
-                        ("width", msg.width, width, np.uint16), ("score", msg.score, world.score, np.float64)])
-    if problem:
-        return problem.replace("expected", "re-simulated")
     remaining = np.where(world.resource_remaining < 0, -1.0, world.resource_remaining / world.load_full)
-    for name, recorded, expected, dtype in (
+    fields = [
         ("grid", msg.grid, world.grid, np.uint8), ("pheromone", msg.pheromone, world.visible_pheromone(), np.float32),
         ("agent_rows", msg.agent_rows, world.pos[:, 0], np.int32),
         ("agent_cols", msg.agent_cols, world.pos[:, 1], np.int32),
@@ -159,13 +152,12 @@ def check_state(msg, world: World) -> str | None:
         ("resource_cols", msg.resource_cols, world.resource_pos[:, 1], np.int32),
         ("resource_directions", msg.resource_directions, world.resource_dir, np.uint8),
         ("resource_remaining", msg.resource_remaining, remaining, np.float32),
-    ):
-        if len(recorded) == 0 and name.startswith("resource"):
-            continue  # not filled by every publisher (older recordings)
-        problem = _field(name, recorded, expected, dtype)
-        if problem:
-            return problem.replace("expected", "re-simulated")
-    return None
+    ]
+    scalars = [("step", msg.step, world.t, np.uint32), ("height", msg.height, height, np.uint16),
+               ("width", msg.width, width, np.uint16), ("score", msg.score, world.score, np.float64)]
+    # the resource fields are not filled by every publisher (older recordings)
+    problem = _scalars(scalars) or _fields(f for f in fields if len(f[1]) or not f[0].startswith("resource"))
+    return problem and problem.replace("expected", "re-simulated")
 
 
 def check_clock(msg, step: int, dt: float) -> str | None:

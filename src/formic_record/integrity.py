@@ -10,12 +10,12 @@ from __future__ import annotations
 
 import struct
 import zlib
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
-from mcap.records import Chunk, Footer, Message
+from mcap.records import Chunk, Footer
 from mcap.stream_reader import StreamReader, breakup_chunk
 
 MAGIC = b"\x89MCAP0\r\n"
@@ -27,37 +27,44 @@ def _describe(exc: BaseException) -> str:
     return f"{exc.__class__.__name__}: {text}"[:200]
 
 
-def has_footer(path: Path) -> bool:
-    """The file ends in a footer and the closing magic (the writer finished it)."""
-    size = path.stat().st_size
-    if size < len(MAGIC) * 2 + FOOTER_BYTES:
-        return False
+def readable_records(handle: BinaryIO, stopped: Callable[[Exception, int], None],
+                     **options: Any) -> Iterator[Any]:
+    """The records of a streaming read (``StreamReader`` options), ending quietly where they
+    no longer parse; ``stopped`` is told why and at which byte."""
+    try:
+        yield from StreamReader(handle, **options).records
+    except Exception as exc:  # noqa: BLE001 - a truncated or broken record ends the readable part
+        stopped(exc, handle.tell())
+
+
+def read_footer(path: Path) -> tuple[int, int, int] | None:
+    """The footer's offset, summary start and summary CRC; None unless the file ends in a
+    footer and the closing magic (the writer finished it)."""
+    at = path.stat().st_size - len(MAGIC) - FOOTER_BYTES
+    if at < len(MAGIC):
+        return None
     with path.open("rb") as handle:
-        handle.seek(size - len(MAGIC) - FOOTER_BYTES)
+        handle.seek(at)
         tail = handle.read()
-    return tail[-len(MAGIC):] == MAGIC and tail[0] == 0x02
+    if tail[-len(MAGIC):] != MAGIC or tail[0] != 0x02:
+        return None
+    summary_start, _, crc = struct.unpack("<QQI", tail[9:FOOTER_BYTES])
+    return at, summary_start, crc
 
 
-def summary_problem(path: Path) -> str | None:
+def summary_problem(path: Path, footer: tuple[int, int, int]) -> str | None:
     """The footer's CRC over the summary section (the ``mcap`` reader does not check it)."""
-    size = path.stat().st_size
+    at, summary_start, crc = footer
+    if crc == 0:
+        return None
+    if summary_start > at:
+        return f"footer at byte {at}: summary start {summary_start} is past the end"
+    start, end = summary_start or at, at + FOOTER_BYTES - 4  # the CRC covers all up to itself
     with path.open("rb") as handle:
-        handle.seek(size - len(MAGIC) - FOOTER_BYTES)
-        footer = handle.read(FOOTER_BYTES)
-        summary_start, _, crc = struct.unpack("<QQI", footer[9:])
-        if crc == 0:
-            return None
-        if summary_start == 0:
-            start = size - len(MAGIC) - FOOTER_BYTES
-        elif summary_start > size - len(MAGIC) - FOOTER_BYTES:
-            return f"footer at byte {size - len(MAGIC) - FOOTER_BYTES}: summary start {summary_start} is past the end"
-        else:
-            start = summary_start
         handle.seek(start)
-        covered = handle.read(size - len(MAGIC) - 4 - start)
-    actual = zlib.crc32(covered)
+        actual = zlib.crc32(handle.read(end - start))
     if actual != crc:
-        return (f"summary section (bytes {start}-{size - len(MAGIC) - 4}): CRC mismatch "
+        return (f"summary section (bytes {start}-{end}): CRC mismatch "
                 f"(footer says {crc:#010x}, bytes give {actual:#010x})")
     return None
 
@@ -66,7 +73,7 @@ def check_integrity(path: str | Path) -> str | None:
     """None when every CRC verifies, else the first failure as one line. A file without a
     footer (cut short) is only checked up to where it ends."""
     path = Path(path)
-    complete = has_footer(path)
+    footer = read_footer(path)
     with path.open("rb") as handle:
         try:
             for record in StreamReader(handle, validate_crcs=True).records:
@@ -74,14 +81,11 @@ def check_integrity(path: str | Path) -> str | None:
                     break
         except Exception as exc:  # noqa: BLE001 - any failure here is the answer
             ended = handle.tell() >= path.stat().st_size
-            if not complete and ended and "crc" not in str(exc).lower():
+            if footer is None and ended and "crc" not in str(exc).lower():
                 return None  # cut short: the readable part ends with the file
             return f"{path.name}: corrupted near byte {handle.tell()}: {_describe(exc)}"
-    if complete:
-        problem = summary_problem(path)
-        if problem:
-            return f"{path.name}: corrupted: {problem}"
-    return None
+    problem = footer and summary_problem(path, footer)
+    return f"{path.name}: corrupted: {problem}" if problem else None
 
 
 @dataclass
@@ -90,34 +94,25 @@ class Salvage:
     dropped_chunks: int = 0
     problems: list[str] = field(default_factory=list)
 
-    @property
-    def messages(self) -> int:
-        return sum(isinstance(r, Message) for r in self.records)
-
 
 def salvage(path: str | Path) -> Salvage:
     """Every record that verifies: chunks whose CRC or decompression fails are dropped
     (counted); the read ends where the record structure itself is broken."""
-    path = Path(path)
     out = Salvage()
-    with path.open("rb") as handle:
-        records: Iterator[Any] = StreamReader(handle, emit_chunks=True).records
-        while True:
-            try:
-                record = next(records)
-            except StopIteration:
+
+    def stopped(exc: Exception, at: int) -> None:
+        out.problems.append(f"reading stopped near byte {at}: {_describe(exc)}")
+
+    with Path(path).open("rb") as handle:
+        for record in readable_records(handle, stopped, emit_chunks=True):
+            if isinstance(record, Footer):
                 break
-            except Exception as exc:  # noqa: BLE001 - the rest of the file cannot be parsed
-                out.problems.append(f"reading stopped near byte {handle.tell()}: {_describe(exc)}")
-                break
-            if isinstance(record, Chunk):
-                try:
-                    out.records.extend(breakup_chunk(record, validate_crc=True))
-                except Exception as exc:  # noqa: BLE001 - a chunk that does not verify is dropped
-                    out.dropped_chunks += 1
-                    out.problems.append(f"chunk ending near byte {handle.tell()}: {_describe(exc)}")
-            elif isinstance(record, Footer):
-                break
-            else:
+            if not isinstance(record, Chunk):
                 out.records.append(record)
+                continue
+            try:
+                out.records.extend(breakup_chunk(record, validate_crc=True))
+            except Exception as exc:  # noqa: BLE001 - a chunk that does not verify is dropped
+                out.dropped_chunks += 1
+                out.problems.append(f"chunk ending near byte {handle.tell()}: {_describe(exc)}")
     return out

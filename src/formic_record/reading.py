@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import shutil
+from collections import Counter, deque
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -12,15 +13,15 @@ from typing import Any
 
 from mcap.reader import make_reader
 from mcap.records import Channel, Message, Metadata, Schema
-from mcap.stream_reader import StreamReader
 from rosbags.interfaces import Qos
 from rosbags.rosbag2.metadata import parse_qos
 from ruamel.yaml import YAML
 
 from .bag import REPAIRED_KEY, RUN_INFO_RECORD, BagWriter, typestore_from_schemas
-from .integrity import check_integrity, salvage
+from .integrity import check_integrity, readable_records, salvage
 
 KEPT_SUFFIX = ".truncated"  # what --repair keeps of the file it replaced
+REPAIR_HINT = " (formic replay --repair keeps what verifies)"
 
 
 # ----------------------------------------------------------------------------- reading
@@ -43,19 +44,62 @@ class RecordingError(RuntimeError):
     """A recording that cannot be read at all."""
 
 
+def _bag_info(directory: Path) -> dict[str, Any]:
+    text = (directory / "metadata.yaml").read_text()
+    return YAML(typ="safe").load(text)["rosbag2_bagfile_information"]
+
+
 def find_mcap(path: str | os.PathLike) -> Path:
     """The MCAP file of a recording directory (or the file itself)."""
     path = Path(path)
     if path.is_file():
         return path
-    meta = path / "metadata.yaml"
-    if meta.is_file():
-        info = YAML(typ="safe").load(meta.read_text())["rosbag2_bagfile_information"]
-        return path / info["relative_file_paths"][0]
+    if (path / "metadata.yaml").is_file():
+        return path / _bag_info(path)["relative_file_paths"][0]
     files = sorted(path.glob("*.mcap"))
     if len(files) != 1:
         raise RecordingError(f"{path}: expected one .mcap file in the recording, found {len(files)}")
     return files[0]
+
+
+@dataclass
+class _Catalog:
+    """What MCAP records declare (schemas, channels, the run info) and the messages they
+    carry, counted per channel. A message whose channel or schema was not declared before it
+    (a damaged chunk took the declaration with it) is skipped."""
+
+    schemas: dict[int, Schema] = field(default_factory=dict)
+    channels: dict[int, Channel] = field(default_factory=dict)
+    counts: Counter[int] = field(default_factory=Counter)
+    run_info: dict[str, str] = field(default_factory=dict)
+
+    def messages(self, records: Iterable[Any], wanted: set[str] | None = None) -> Iterator[RecordedMessage]:
+        for record in records:
+            if isinstance(record, Schema):
+                self.schemas[record.id] = record
+            elif isinstance(record, Channel):
+                self.channels[record.id] = record
+            elif isinstance(record, Metadata) and record.name == RUN_INFO_RECORD:
+                self.run_info.update(record.metadata)
+            elif isinstance(record, Message) and record.channel_id in self.channels:
+                channel = self.channels[record.channel_id]
+                schema = self.schemas.get(channel.schema_id)
+                if schema is not None:
+                    self.counts[channel.id] += 1
+                    if wanted is None or channel.topic in wanted:
+                        yield RecordedMessage(channel.topic, schema.name, record.log_time, record.data)
+
+    def scan(self, records: Iterable[Any]) -> "_Catalog":
+        deque(self.messages(records), maxlen=0)
+        return self
+
+    def definitions(self) -> dict[str, str]:
+        return {schema.name: schema.data.decode() for schema in self.schemas.values()}
+
+    def topics(self) -> dict[str, TopicInfo]:
+        return {c.topic: TopicInfo(self.schemas[c.schema_id].name, self.counts[c.id],
+                                   parse_qos(c.metadata.get("offered_qos_profiles", "")))
+                for c in self.channels.values() if c.schema_id in self.schemas}
 
 
 class Recording:
@@ -80,10 +124,11 @@ class Recording:
         except Exception:  # noqa: BLE001 - any failure of the index means: stream it
             self.streamed = True
             self.problem = "no usable summary (the writer did not close the file)"
-            self._scan_streaming()
+            self._adopt(_Catalog().scan(self._stream_records()))
+            if self.stream_error:
+                self.problem += f"; the streaming read stopped where the file was cut ({self.stream_error})"
         if self.metadata_path is not None and self.metadata_path.is_file():
-            info = YAML(typ="safe").load(self.metadata_path.read_text())["rosbag2_bagfile_information"]
-            self.run_info = {**self.run_info, **(info.get("custom_data") or {})}
+            self.run_info.update(_bag_info(self.path).get("custom_data") or {})
         elif self.metadata_path is not None:
             self.problem = (self.problem + "; " if self.problem else "") + "no metadata.yaml"
 
@@ -106,7 +151,7 @@ class Recording:
         """Raise :class:`RecordingError` if the file is corrupted."""
         problem = self.corruption()
         if problem:
-            raise RecordingError(problem + " (formic replay --repair keeps what verifies)")
+            raise RecordingError(problem + REPAIR_HINT)
 
     @property
     def message_count(self) -> int:
@@ -118,81 +163,38 @@ class Recording:
             summary = reader.get_summary()
             if summary is None or summary.statistics is None:
                 raise RecordingError("the file has no summary section")
-            schemas = summary.schemas
-            counts = summary.statistics.channel_message_counts
-            for schema in schemas.values():
-                self.schemas[schema.name] = schema.data.decode()
-            for channel in summary.channels.values():
-                self._add_channel(channel, schemas[channel.schema_id], counts.get(channel.id, 0))
-            for record in reader.iter_metadata():
-                if record.name == RUN_INFO_RECORD:
-                    self.run_info.update(record.metadata)
+            counts = Counter(summary.statistics.channel_message_counts)
+            catalog = _Catalog(summary.schemas, summary.channels, counts)
+            self._adopt(catalog.scan(reader.iter_metadata()))
 
-    def _add_channel(self, channel: Channel, schema: Schema, count: int) -> None:
-        qos = parse_qos(channel.metadata.get("offered_qos_profiles", ""))
-        self.topics[channel.topic] = TopicInfo(schema.name, count, qos)
+    def _adopt(self, catalog: _Catalog) -> None:
+        self.schemas, self.topics = catalog.definitions(), catalog.topics()
+        self.run_info.update(catalog.run_info)
 
     def _stream_records(self) -> Iterator[Any]:
         """Every record a streaming read reaches; stops quietly where the file was cut."""
-        with self.mcap_path.open("rb") as handle:
-            records = StreamReader(handle).records
-            while True:
-                try:
-                    record = next(records)
-                except StopIteration:
-                    return
-                except Exception as exc:  # noqa: BLE001 - a truncated record ends the readable part
-                    self.stream_error = f"{exc.__class__.__name__} at byte {handle.tell()}"
-                    return
-                yield record
+        def stopped(exc: Exception, at: int) -> None:
+            self.stream_error = f"{exc.__class__.__name__} at byte {at}"
 
-    def _scan_streaming(self) -> None:
-        schemas: dict[int, Schema] = {}
-        channels: dict[int, Channel] = {}
-        counts: dict[int, int] = {}
-        for record in self._stream_records():
-            if isinstance(record, Message):
-                counts[record.channel_id] = counts.get(record.channel_id, 0) + 1
-            elif isinstance(record, Schema):
-                schemas[record.id] = record
-                self.schemas[record.name] = record.data.decode()
-            elif isinstance(record, Channel):
-                channels[record.id] = record
-            elif isinstance(record, Metadata) and record.name == RUN_INFO_RECORD:
-                self.run_info.update(record.metadata)
-        for channel in channels.values():
-            self._add_channel(channel, schemas[channel.schema_id], counts.get(channel.id, 0))
-        if self.stream_error:
-            self.problem += f"; the streaming read stopped where the file was cut ({self.stream_error})"
+        with self.mcap_path.open("rb") as handle:
+            yield from readable_records(handle, stopped)
 
     def messages(self, topics: Iterable[str] | None = None) -> Iterator[RecordedMessage]:
         """Messages in log-time order (file order when streamed), optionally of some topics."""
         wanted = None if topics is None else set(topics)
-        if not self.streamed:
-            with self.mcap_path.open("rb") as handle:
-                found = make_reader(handle, validate_crcs=True).iter_messages(
-                    topics=None if wanted is None else sorted(wanted), log_time_order=True)
-                while True:
-                    try:
-                        schema, channel, message = next(found)
-                    except StopIteration:
-                        return
-                    except Exception as exc:  # noqa: BLE001 - a damaged chunk: a clean error
-                        detail = " ".join(str(exc).split())[:160]
-                        raise RecordingError(f"{self.mcap_path.name}: corrupted: {exc.__class__.__name__}: "
-                                             f"{detail} (formic replay --repair keeps what verifies)") from None
+        if self.streamed:
+            yield from _Catalog().messages(self._stream_records(), wanted)
+            return
+        with self.mcap_path.open("rb") as handle:
+            found = make_reader(handle, validate_crcs=True).iter_messages(
+                topics=None if wanted is None else sorted(wanted), log_time_order=True)
+            try:
+                for schema, channel, message in found:
                     yield RecordedMessage(channel.topic, schema.name, message.log_time, message.data)
-        channels: dict[int, tuple[str, str]] = {}
-        schema_names: dict[int, str] = {}
-        for record in self._stream_records():
-            if isinstance(record, Schema):
-                schema_names[record.id] = record.name
-            elif isinstance(record, Channel):
-                channels[record.id] = (record.topic, schema_names.get(record.schema_id, ""))
-            elif isinstance(record, Message):
-                topic, msgtype = channels[record.channel_id]
-                if wanted is None or topic in wanted:
-                    yield RecordedMessage(topic, msgtype, record.log_time, record.data)
+            except Exception as exc:  # noqa: BLE001 - a damaged chunk: a clean error
+                detail = " ".join(str(exc).split())[:160]
+                raise RecordingError(f"{self.mcap_path.name}: corrupted: {exc.__class__.__name__}: {detail}"
+                                     + REPAIR_HINT) from None
 
     def typestore(self):
         return typestore_from_schemas(self.schemas)
@@ -214,33 +216,6 @@ class RepairReport:
     dropped: int = 0  # messages lost to damaged chunks (when the summary still counted them)
 
 
-def _salvaged_topics(records) -> tuple[dict[str, TopicInfo], dict[str, str], list[RecordedMessage], dict]:
-    schemas: dict[int, Schema] = {}
-    channels: dict[int, Channel] = {}
-    messages, run_info = [], {}
-    for record in records:
-        if isinstance(record, Schema):
-            schemas[record.id] = record
-        elif isinstance(record, Channel):
-            channels[record.id] = record
-        elif isinstance(record, Metadata) and record.name == RUN_INFO_RECORD:
-            run_info.update(record.metadata)
-        elif isinstance(record, Message) and record.channel_id in channels:
-            channel = channels[record.channel_id]
-            schema = schemas.get(channel.schema_id)
-            if schema is not None:
-                messages.append(RecordedMessage(channel.topic, schema.name, record.log_time, record.data))
-    topics = {}
-    for channel in channels.values():
-        if channel.schema_id in schemas:
-            qos = parse_qos(channel.metadata.get("offered_qos_profiles", ""))
-            topics[channel.topic] = TopicInfo(schemas[channel.schema_id].name, 0, qos)
-    for message in messages:
-        topics[message.topic].count += 1
-    definitions = {s.name: s.data.decode() for s in schemas.values()}
-    return topics, definitions, sorted(messages, key=lambda m: m.log_time), run_info
-
-
 def repair_recording(path: str | os.PathLike) -> RepairReport:
     """Rebuild the MCAP summary and ``metadata.yaml`` of a recording cut short (like
     ``ros2 bag reindex``) or corrupted: every message a streaming read recovers from chunks
@@ -259,7 +234,8 @@ def repair_recording(path: str | os.PathLike) -> RepairReport:
     if kept.exists():
         raise RecordingError(f"{kept} exists (an earlier repair kept it); move it away first")
     rescued = salvage(original)
-    topics, definitions, messages, run_info = _salvaged_topics(rescued.records)
+    catalog = _Catalog()
+    messages = sorted(catalog.messages(rescued.records), key=lambda m: m.log_time)
     if not messages:
         raise RecordingError(f"{original.name}: corrupted beyond repair ({corruption or recording.problem}); "
                              "no message verifies")
@@ -269,12 +245,13 @@ def repair_recording(path: str | os.PathLike) -> RepairReport:
     shutil.rmtree(work, ignore_errors=True)
     work.mkdir()
     staged = work / path.name
-    with BagWriter(staged, typestore=typestore_from_schemas(definitions), file_name=original.name) as writer:
-        for topic, info in topics.items():
+    with BagWriter(staged, typestore=typestore_from_schemas(catalog.definitions()),
+                   file_name=original.name) as writer:
+        for topic, info in catalog.topics().items():
             writer.add_topic(topic, info.msgtype, info.qos)
         for message in messages:
             writer.write(message.topic, message.log_time, message.data)
-        writer.set_run_info({**recording.run_info, **run_info, REPAIRED_KEY: original.name + KEPT_SUFFIX})
+        writer.set_run_info({**recording.run_info, **catalog.run_info, REPAIRED_KEY: kept.name})
     try:
         os.link(original, kept)
     except OSError:

@@ -20,11 +20,11 @@ import numpy as np
 
 from formic_world import NO_ACTION, Scenario, World
 
+from .checks import WORLD_STATE
 from .reading import Recording
 
 NO_ACTION_WIRE = 255  # ActionBatch value for "no action arrived" (formic_ros.qos.NO_ACTION_WIRE)
 SCENARIO_TYPE = "formic_interfaces/msg/ScenarioDescription"
-STATE_TYPE = "formic_interfaces/msg/WorldState"
 ACTIONS_TYPE = "formic_interfaces/msg/ActionBatch"
 APPLIED_SUFFIX = "/applied_actions"
 
@@ -56,7 +56,7 @@ def read_episodes(recording: Recording) -> list[RecordedEpisode]:
     """The episodes in a recording, in order (a new scenario description starts one)."""
     store = recording.typestore()
     wanted = [t for t, info in recording.topics.items()
-              if info.msgtype in (SCENARIO_TYPE, STATE_TYPE)
+              if info.msgtype in (SCENARIO_TYPE, WORLD_STATE)
               or (info.msgtype == ACTIONS_TYPE and t.endswith(APPLIED_SUFFIX))]
     episodes: list[RecordedEpisode] = []
     for message in recording.messages(wanted):
@@ -70,20 +70,13 @@ def read_episodes(recording: Recording) -> list[RecordedEpisode]:
         if not episodes:
             episodes.append(RecordedEpisode())
         episode = episodes[-1]
-        if message.msgtype == STATE_TYPE:
+        if message.msgtype == WORLD_STATE:
             episode.states[int(msg.step)] = RecordedState.from_message(msg)
         else:
             wire = np.asarray(msg.actions, dtype=np.int64)
             episode.actions[int(msg.step)] = np.stack([np.asarray(msg.agent_ids, dtype=np.int64),
                                                        np.where(wire == NO_ACTION_WIRE, NO_ACTION, wire)])
     return episodes
-
-
-def _actions_for(episode: RecordedEpisode, step: int, n_agents: int) -> np.ndarray:
-    ids, values = episode.actions[step]
-    actions = np.full(n_agents, NO_ACTION, dtype=np.int64)
-    actions[ids] = values
-    return actions
 
 
 def resimulate(episode: RecordedEpisode) -> Iterator[World]:
@@ -95,7 +88,10 @@ def resimulate(episode: RecordedEpisode) -> Iterator[World]:
     yield world
     n = episode.scenario.config.n_agents
     while world.t in episode.actions and not world.done:
-        world.step(_actions_for(episode, world.t, n))
+        ids, values = episode.actions[world.t]
+        actions = np.full(n, NO_ACTION, dtype=np.int64)
+        actions[ids] = values
+        world.step(actions)
         yield world
 
 
@@ -118,14 +114,19 @@ def verify_recording(path: str | os.PathLike):
     return verify(path)
 
 
+def _described_episodes(path: str | os.PathLike, otherwise: str) -> list[RecordedEpisode]:
+    episodes = [e for e in read_episodes(Recording(path)) if e.scenario is not None]
+    if not episodes:
+        raise ValueError(f"{path}: no scenario description recorded; {otherwise}")
+    return episodes
+
+
 def render_recording(path: str | os.PathLike, out: str | os.PathLike, scale: int = 4, fps: float = 20) -> int:
     """Rebuild the world states of a recording by re-simulation and write them as a GIF or
     MP4 (or the last state as a PNG). Returns the number of frames."""
     from formic_world.render import render_frame, render_frames_to_file, save_png
 
-    episodes = [e for e in read_episodes(Recording(path)) if e.scenario is not None]
-    if not episodes:
-        raise ValueError(f"{path}: no scenario description recorded; nothing to render")
+    episodes = _described_episodes(path, "nothing to render")
     frames = (render_frame(world, scale=scale, caption=True) for e in episodes for world in resimulate(e))
     out = Path(out)
     if out.suffix.lower() == ".png":
@@ -138,11 +139,8 @@ def view_recording(path: str | os.PathLike, view, rate: float = 1.0, dt: float =
     """Re-simulate the recording into a live view (:class:`formic_view.LiveView`), paced at
     ``rate`` times sim time (``dt`` s a step; ``rate`` 0: as fast as possible). Returns the
     number of steps shown."""
-    episodes = [e for e in read_episodes(Recording(path)) if e.scenario is not None]
-    if not episodes:
-        raise ValueError(f"{path}: no scenario description recorded; nothing to show")
     steps = 0
-    for episode in episodes:
+    for episode in _described_episodes(path, "nothing to show"):
         start = time.monotonic()
         for world in resimulate(episode):
             if rate > 0:

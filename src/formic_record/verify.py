@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import os
 from collections import Counter, defaultdict
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 
 from . import checks
 from .reading import Recording
@@ -52,20 +52,14 @@ class VerifyReport:
         return text + ("; note: " + "; ".join(self.problems) if self.problems else "")
 
     def to_dict(self) -> dict:
-        return dict(ok=self.ok, episodes=self.episodes, states_checked=self.states_checked,
-                    steps_simulated=self.steps_simulated, reading=self.reading, problems=self.problems,
-                    messages_checked=self.messages_checked, topics_checked=self.topics_checked,
-                    mismatches=self.mismatches)
+        return asdict(self)
 
 
 def _infer_dt(clocks: dict, state_steps: dict, run_info: dict) -> float | None:
     if "dt" in run_info:
         return float(run_info["dt"])
-    ratios = Counter()
-    for ep, items in clocks.items():
-        for (_, msg), step in zip(items, state_steps[ep]):
-            if step > 0:
-                ratios[round(checks.stamp_ns(msg.clock) / step)] += 1
+    ratios = Counter(round(checks.stamp_ns(msg.clock) / step) for ep, items in clocks.items()
+                     for (_, msg), step in zip(items, state_steps[ep]) if step > 0)
     return ratios.most_common(1)[0][0] / 1e9 if ratios else None
 
 
