@@ -1,37 +1,31 @@
 """Agent host: one process that drives any set of agents over ROS.
 
 Per-agent transport (default): every agent is its own rclpy node ``agent_K`` in the namespace,
-with ``agent_K/observation`` in and ``agent_K/action`` out, all nodes in one events executor
-(ROS composition). That is what ``ros2 node list`` shows and what a robot's own node replaces.
-Batched transport: one node holds the ``observations``/``actions`` pair and answers for its
-agents in one message. Either way the host acts once per step for all its agents (a learned
-policy runs one batch) as soon as it has every one of its agents' observations for that step;
-per-agent, an observation lost on a lossy link does not stall the others: ``PARTIAL_WAIT_S``
-after the step's first observation the host acts for those that arrived, and answers a late one
-on its own when it comes (policies draw their randomness per agent and step, so the actions are
-the same either way).
+with ``agent_K/observation`` in and ``agent_K/action`` out, all in one events executor (ROS
+composition): what ``ros2 node list`` shows and what a robot's own node replaces. Batched: one
+node holds the ``observations``/``actions`` pair and answers for its agents in one message.
+Either way the host acts once per step for all its agents (a learned policy runs one batch) as
+soon as it has all their observations of that step. Per-agent, an observation lost on a lossy
+link does not stall the others: ``PARTIAL_WAIT_S`` after the step's first observation the host
+acts for those that arrived and answers a late one on its own when it comes (policies draw
+their randomness per agent and step, so the actions are the same either way).
 
-Policies reset from the latched scenario (seed, team size); a restarted host therefore starts
-with fresh memory and answers from whatever step the world is at. Observations of a step the
-host has already answered (the world re-sends step 0 until everyone is heard) get the same
-actions again, never a second policy call.
-
-Learning mode (batched; distributed training) is :mod:`formic_ros.learning_host`.
+Policies reset from the latched scenario (seed, team size), so a restarted host starts with
+fresh memory and answers from whatever step the world is at. Observations of a step already
+answered (the world re-sends step 0 until everyone is heard) get the same actions again, never
+a second policy call. Learning mode (batched; distributed training): :mod:`formic_ros.learning_host`.
 """
 
 from __future__ import annotations
 
 import os
 import time
+from contextlib import suppress
+
 import numpy as np
 import rclpy
-from formic_interfaces.msg import (
-    ActionBatch,
-    AgentAction,
-    AgentObservation,
-    ObservationBatch,
-    ScenarioDescription,
-)
+from formic_interfaces.msg import (ActionBatch, AgentAction, AgentObservation, ObservationBatch,
+                                   ScenarioDescription)
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.type_description_service import START_TYPE_DESCRIPTION_SERVICE_PARAM
@@ -72,17 +66,9 @@ def lean_node(name: str, namespace: str) -> Node:
 class AgentHost:
     """The nodes and policies of one host; add :attr:`nodes` to an executor and spin."""
 
-    def __init__(
-        self,
-        agent_ids: list[int],
-        spec: str,
-        model: str | None = None,
-        greedy: bool = False,
-        transport: str = "per-agent",
-        namespace: str = qos.DEFAULT_NAMESPACE,
-        name: str | None = None,
-        torch_threads: int = 1,
-    ):
+    def __init__(self, agent_ids: list[int], spec: str, model: str | None = None, greedy: bool = False,
+                 transport: str = "per-agent", namespace: str = qos.DEFAULT_NAMESPACE,
+                 name: str | None = None, torch_threads: int = 1):
         if transport not in TRANSPORTS:
             raise ValueError(f"unknown transport {transport!r}; choose from {', '.join(TRANSPORTS)}")
         self.ids = np.array(sorted(agent_ids), dtype=np.int64)
@@ -100,6 +86,7 @@ class AgentHost:
         if transport == "batched":
             self.control.create_subscription(ObservationBatch, qos.OBSERVATIONS, self._on_batch, qos.STREAM)
             self.actions_pub = self.control.create_publisher(ActionBatch, f"~/{qos.ACTIONS}", qos.STREAM)
+            batched, publishers = self.actions_pub.topic_name, [self.actions_pub]
         else:
             self.action_pubs = {}
             for a in self.ids.tolist():
@@ -109,14 +96,12 @@ class AgentHost:
                 self.action_pubs[a] = node.create_publisher(AgentAction, f"~/{qos.AGENT_ACTION}", qos.STREAM)
                 self.nodes.append(node)
             self.control.create_timer(PARTIAL_WAIT_S / 4, self._answer_late_step)
-        batched = self.actions_pub.topic_name if transport == "batched" else None
-        publishers = [self.actions_pub] if batched else list(self.action_pubs.values())
+            batched, publishers = None, list(self.action_pubs.values())
         self.claim = Claim(self.control, self.ids.tolist(), batched, publishers=publishers)  # the world checks it
+        self.scenario: Scenario | None = None
         self.scenario_json = ""
-        self.n_agents = self.horizon = 0
+        self.horizon = -1  # its episode's steps (-1: no scenario yet)
         self.expected = 0  # this host's agents that are in the team
-        self.seed = 0
-        self.wipeout_starts: frozenset[int] = frozenset()
         self.episodes = 0
         self.finished = False  # the current episode has ended (a done observation arrived)
         self._reset_steps()
@@ -133,7 +118,7 @@ class AgentHost:
         self.wiped_at = -1
 
     def _start_episode(self) -> None:
-        self.team.reset(self.n_agents, self.seed)
+        self.team.reset(self.scenario.config.n_agents, self.scenario.seed)
         self._reset_steps()
         self.finished = False
         self.episodes += 1
@@ -141,22 +126,20 @@ class AgentHost:
     def _on_scenario(self, msg: ScenarioDescription) -> None:
         if msg.scenario_json == self.scenario_json or (scenario := read_scenario(msg, self.log)) is None:
             return
-        self.scenario_json = msg.scenario_json
-        self.n_agents = scenario.config.n_agents
-        self.horizon = scenario.config.episode_steps
-        self.seed = scenario.seed
-        self.wipeout_starts = frozenset(scenario.wipeout_starts)
-        outside = self.ids[self.ids >= self.n_agents]
+        self.scenario_json, self.scenario, config = msg.scenario_json, scenario, scenario.config
+        self.horizon = config.episode_steps
+        outside = self.ids[self.ids >= config.n_agents]
         if len(outside):
-            self.log.error(f"agents {outside.tolist()} are not in this team of {self.n_agents}: "
+            self.log.error(f"agents {outside.tolist()} are not in this team of {config.n_agents}: "
                            "they get no observations")
-        self.expected = int((self.ids < self.n_agents).sum())
-        wrong = {k: v for k, v in self.world_needs.items() if getattr(scenario.config, k) != v}
+        self.expected = int((self.ids < config.n_agents).sum())
+        wrong = {k: v for k, v in self.world_needs.items() if getattr(config, k) != v}
         if wrong:
             self.log.error(f"this host's policies need a world with {wrong}, but the world serves "
-                           f"{ {k: getattr(scenario.config, k) for k in wrong} }: `formic run` sets them")
+                           f"{ {k: getattr(config, k) for k in wrong} }: `formic run` sets them")
         self._start_episode()
-        self.log.info(f"scenario seed {self.seed}: driving agents {format_ids(self.ids.tolist())} ({self.transport})")
+        self.log.info(f"scenario seed {scenario.seed}: driving agents {format_ids(self.ids.tolist())} "
+                      f"({self.transport})")
 
     def _ready(self, step: int, done: bool) -> bool:
         """Whether an observation of ``step`` should be answered (handles episode ends and a
@@ -175,8 +158,9 @@ class AgentHost:
         if msg.agent_id != agent or not self._ready(msg.step, msg.done):
             return
         if msg.step == self.answered_step:
-            if agent in self.answer_ids:
-                self._resend(agent)
+            if agent in self.answer_ids:  # a re-send
+                action = int(self.answer[self.answer_ids == agent][0])
+                self.action_pubs[agent].publish(AgentAction(step=msg.step, agent_id=agent, action=action))
             else:  # late: the others were answered without it
                 self._answer(convert.decode_agent_observations([msg]))
             return
@@ -215,7 +199,7 @@ class AgentHost:
     # ------------------------------------------------------------------------ actions
     def _answer(self, batch: AgentBatch) -> None:
         step = batch.step
-        if step in self.wipeout_starts and self.wiped_at != step:
+        if step in self.scenario.wipeout_starts and self.wiped_at != step:
             self.team.wipe()
             self.wiped_at = step
         actions = self.team.act(batch)
@@ -231,16 +215,11 @@ class AgentHost:
             for a, action in zip(batch.agent_ids.tolist(), actions.tolist()):
                 self.action_pubs[a].publish(AgentAction(step=step, agent_id=a, action=action))
 
-    def _resend(self, agent: int) -> None:
-        row = np.flatnonzero(self.answer_ids == agent)
-        if len(row):
-            action = int(self.answer[row[0]])
-            self.action_pubs[agent].publish(AgentAction(step=self.answered_step, agent_id=agent, action=action))
-
 
 class WorldWatch:
-    """Notices that the world which published our scenario has left the graph, so a ``--once``
-    process that missed the final observation does not wait forever (checked every 0.5 s)."""
+    """Notices that the world which published our scenario has left the graph, so a process
+    waiting for an episode's end that missed its final message does not wait forever (checked
+    every 0.5 s)."""
 
     PERIOD_S = 0.5
 
@@ -248,12 +227,19 @@ class WorldWatch:
         self.node = node
         self.next_check = 0.0
 
-    def gone(self, scenario_json: str) -> bool:
+    def ended(self, next_step: int, horizon: int) -> bool:
+        """Whether the world has left after its episode ended (only the final message was lost);
+        raises :class:`WorldLost` when it left before: ``next_step`` is the first step this
+        process has not seen through, of ``horizon`` (-1: no scenario yet, nothing to watch)."""
         now = time.monotonic()
-        if not scenario_json or now < self.next_check:
+        if horizon < 0 or now < self.next_check:
             return False
         self.next_check = now + self.PERIOD_S
-        return self.node.count_publishers(qos.SCENARIO) == 0
+        if self.node.count_publishers(qos.SCENARIO):
+            return False
+        if next_step < horizon:
+            raise WorldLost(f"the world left at step {next_step} of {horizon}, before the episode ended")
+        return True
 
 
 def serve_agents(agent_ids: list[int], spec: str, once: bool = False, domain_id: int | None = None, **settings) -> int:
@@ -266,14 +252,9 @@ def serve_agents(agent_ids: list[int], spec: str, once: bool = False, domain_id:
         for node in host.nodes:
             executor.add_node(node)
         watch = WorldWatch(host.control)
-        try:
+        with suppress(KeyboardInterrupt):
             while not (once and host.finished):
                 executor.spin_once(timeout_sec=0.2)
-                if once and not host.finished and watch.gone(host.scenario_json):
-                    if host.answered_step + 1 >= host.horizon:
-                        break  # it ended: only the final (done) observation was lost
-                    raise WorldLost(f"the world left at step {host.answered_step + 1} of {host.horizon}, "
-                                    "before the episode ended")
-        except KeyboardInterrupt:
-            pass
+                if once and not host.finished and watch.ended(host.answered_step + 1, host.horizon):
+                    break  # only the final (done) observation was lost
         return host.episodes

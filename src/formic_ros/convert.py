@@ -16,15 +16,8 @@ from typing import NamedTuple
 
 import numpy as np
 from rclpy.serialization import deserialize_message
-from formic_interfaces.msg import (
-    ActionBatch,
-    AgentObservation,
-    ObservationBatch,
-    Rollout,
-    ScenarioDescription,
-    Weights,
-    WorldState,
-)
+from formic_interfaces.msg import (ActionBatch, AgentObservation, ObservationBatch, Rollout,
+                                   ScenarioDescription, Weights, WorldState)
 
 from formic_agent.policy import AgentBatch
 from formic_world import Scenario, World
@@ -32,6 +25,7 @@ from formic_world.geometry import N_ACTIONS
 
 from .qos import NO_ACTION_WIRE
 from .wire import decode_observations, f32, i32, observation_fields, read, u8, u32
+
 
 def checked_subscription(node, msg_type, topic: str, profile, on_message, on_malformed):
     """A subscription that hands ``on_message`` decoded messages and ``on_malformed(topic,
@@ -55,8 +49,10 @@ EXTRA_INPUT_COUNT = 4  # formic_agent.network.N_EXTRA_INPUTS (importing it would
 
 
 # ------------------------------------------------------------------------ observations
-def _rows(batch: AgentBatch, rows) -> tuple[np.ndarray, ...]:
-    arrays = (batch.agent_ids, batch.observations, batch.action_mask, batch.positions, batch.loads, batch.queued)
+def _rows(batch: AgentBatch, rewards: np.ndarray, rows) -> tuple[np.ndarray, ...]:
+    """The batch's arrays and ``rewards`` (indexed like the batch), restricted to ``rows``."""
+    arrays = (batch.agent_ids, batch.observations, batch.action_mask, batch.positions, batch.loads,
+              batch.queued, rewards)
     return arrays if rows is None else tuple(a[rows] for a in arrays)
 
 
@@ -64,10 +60,9 @@ def encode_observation_batch(batch: AgentBatch, rewards: np.ndarray, done: bool,
                              train_masks: np.ndarray | None = None, encoding: str = "compact") -> ObservationBatch:
     """Rows ``rows`` (default: all) of a batch, with their rewards and training masks (indexed
     like the batch), as one message in ``encoding`` (``float32`` or ``compact``)."""
-    ids, observations, action_mask, positions, loads, queued = _rows(batch, rows)
-    if rows is not None:
-        rewards = rewards[rows]
-        train_masks = None if train_masks is None else train_masks[rows]
+    ids, observations, action_mask, positions, loads, queued, rewards = _rows(batch, rewards, rows)
+    if rows is not None and train_masks is not None:
+        train_masks = train_masks[rows]
     return ObservationBatch(
         step=batch.step, agent_ids=u32(ids), channels=observations.shape[1], size=observations.shape[2],
         **observation_fields(observations, encoding),
@@ -106,8 +101,7 @@ def rows_of(msg: ObservationBatch, agent_ids: np.ndarray) -> np.ndarray:
 
 def encode_agent_observations(batch: AgentBatch, rewards: np.ndarray, done: bool, rows=None) -> list[AgentObservation]:
     """One AgentObservation per row in ``rows`` (default: all) of a batch."""
-    ids, observations, action_mask, positions, loads, queued = _rows(batch, rows)
-    rewards = rewards if rows is None else rewards[rows]
+    ids, observations, action_mask, positions, loads, queued, rewards = _rows(batch, rewards, rows)
     channels, size = observations.shape[1], observations.shape[2]
     block = channels * size * size * 4
     raw = memoryview(np.ascontiguousarray(observations, dtype=np.float32)).cast("B")
@@ -175,22 +169,13 @@ def encode_state(world: World, missed: np.ndarray) -> WorldState:
     remaining = np.where(world.resource_remaining < 0, -1.0, world.resource_remaining / full)
     height, width = world.grid.shape
     return WorldState(
-        step=world.t,
-        height=height,
-        width=width,
-        score=world.score,
-        grid=u8(world.grid),
-        pheromone=f32(world.visible_pheromone()),
-        agent_rows=i32(world.pos[:, 0]),
-        agent_cols=i32(world.pos[:, 1]),
-        agent_loads=f32(world.loads),
-        agent_queues=i32(world.queue_of),
-        resource_rows=i32(world.resource_pos[:, 0]),
-        resource_cols=i32(world.resource_pos[:, 1]),
-        resource_directions=u8(world.resource_dir),
-        resource_remaining=f32(remaining),
-        missed_actions=u32(missed),
-        state_digest=world.state_digest(),
+        step=world.t, height=height, width=width, score=world.score,
+        grid=u8(world.grid), pheromone=f32(world.visible_pheromone()),
+        agent_rows=i32(world.pos[:, 0]), agent_cols=i32(world.pos[:, 1]),
+        agent_loads=f32(world.loads), agent_queues=i32(world.queue_of),
+        resource_rows=i32(world.resource_pos[:, 0]), resource_cols=i32(world.resource_pos[:, 1]),
+        resource_directions=u8(world.resource_dir), resource_remaining=f32(remaining),
+        missed_actions=u32(missed), state_digest=world.state_digest(),
     )
 
 
@@ -216,14 +201,12 @@ def encode_rollout(arrays: dict[str, np.ndarray], weights_version: int = 0, host
                    food: float = 0.0) -> Rollout:
     """A chunk's arrays (``Actor.rollout``'s: T+1 observation frames, T of the rest; other keys ignored)."""
     frames, agents, channels, size, _ = arrays["obs"].shape
-    optional = {name: arrays[key] for key, name in (("sample_mask", "sample_masks"), ("extra", "extra_inputs"))
-                if key in arrays}
     return Rollout(
         weights_version=weights_version, host=host, episode=episode, n_agents=agents, n_steps=frames - 1,
         channels=channels, size=size, agent_ids=u32(arrays["agent_ids"]), observations=f32(arrays["obs"]),
         actions=u8(arrays["actions"]), rewards=f32(arrays["rewards"]), valid_masks=u8(arrays["train_mask"]),
         loss_mask=u8(arrays["loss_mask"]), value_mask=u8(arrays["value_mask"]),
-        sample_masks=u8(optional.get("sample_masks", [])), extra_inputs=f32(optional.get("extra_inputs", [])),
+        sample_masks=u8(arrays.get("sample_mask", [])), extra_inputs=f32(arrays.get("extra", [])),
         food=float(food),
     )
 

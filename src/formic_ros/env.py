@@ -1,20 +1,13 @@
-"""The environment every ForMIC ROS process runs with.
+"""The environment every ForMIC ROS process runs with (docs/ros.md, "Running nodes on several
+machines", has the details and the shipped profiles).
 
 Discovery stays on this machine unless the user says otherwise
 (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` is set only when the variable is absent), and the
-domain id is explicit, so two runs on one network or one machine do not mix. Set these before
-``rclpy.init``: rcl reads them when the context starts.
-
-Fast DDS gets a shipped XML profile (``FASTRTPS_DEFAULT_PROFILES_FILE``: the variable the Fast
-DDS 2.14 in the PyPI wheels reads; ``FASTDDS_DEFAULT_PROFILES_FILE`` is Fast DDS 3's name) unless
-the user set one:
-
-* default: UDPv4 bound to the loopback interface only, plus shared memory (no shared memory when
-  ``FASTDDS_BUILTIN_TRANSPORTS=UDPv4``), so nothing listens on other interfaces;
-* ``FORMIC_DDS_NETWORK=hosts`` (``--hosts-network``): Fast DDS's builtin transports on every
-  interface, for a world and agents on several machines;
-* both: a 50 ms reliable-writer heartbeat, so a sample lost on a lossy link is repaired within
-  ~100 ms instead of at the 3 s default (past the world's 1 s deadline).
+domain id is explicit, so two runs on one network or one machine do not mix. Fast DDS gets a
+shipped XML profile unless the user set one: loopback only by default, every interface with
+``FORMIC_DDS_NETWORK=hosts``, and a 50 ms reliable-writer heartbeat in both, so a lost sample
+is repaired within ~100 ms instead of at the 3 s default (past the world's 1 s deadline).
+Set these before ``rclpy.init``: rcl reads them when the context starts.
 """
 
 from __future__ import annotations
@@ -28,8 +21,8 @@ from pathlib import Path
 
 DISCOVERY_VARIABLE = "ROS_AUTOMATIC_DISCOVERY_RANGE"
 DOMAIN_VARIABLE = "ROS_DOMAIN_ID"
-PROFILE_VARIABLE = "FASTRTPS_DEFAULT_PROFILES_FILE"
-PROFILE_VARIABLE_V3 = "FASTDDS_DEFAULT_PROFILES_FILE"
+PROFILE_VARIABLE = "FASTRTPS_DEFAULT_PROFILES_FILE"  # the one the Fast DDS 2.14 of the PyPI wheels reads
+PROFILE_VARIABLE_V3 = "FASTDDS_DEFAULT_PROFILES_FILE"  # Fast DDS 3's name
 NETWORK_VARIABLE = "FORMIC_DDS_NETWORK"
 WARNED_VARIABLE = "_FORMIC_HOSTS_WARNED"
 PROFILE_DIR = Path(__file__).resolve().parent / "fastdds"
@@ -72,12 +65,10 @@ def apply_profile(env: dict[str, str]) -> None:
     gets the matching file)."""
     user = env.get(PROFILE_VARIABLE) or env.get(PROFILE_VARIABLE_V3)
     if user and not _is_shipped(user):
-        env.setdefault(PROFILE_VARIABLE, user)
-        env.setdefault(PROFILE_VARIABLE_V3, user)
-        return
-    path = str(shipped_profile(env))
-    env[PROFILE_VARIABLE] = path
-    env[PROFILE_VARIABLE_V3] = path
+        for variable in (PROFILE_VARIABLE, PROFILE_VARIABLE_V3):
+            env.setdefault(variable, user)
+    else:
+        env.update(dict.fromkeys((PROFILE_VARIABLE, PROFILE_VARIABLE_V3), str(shipped_profile(env))))
 
 
 def warn_if_exposed(env: Mapping[str, str] | None = None, stream=None) -> bool:

@@ -39,10 +39,6 @@ DEFAULT_MAX_LAG = 4  # the trainer node's (formic_ros.trainer_node imports torch
 HOST_EXIT_S = 10.0  # how long hosts get to leave by themselves after the episode
 
 
-def ids_text(ids: list[int]) -> str:
-    return ",".join(map(str, ids))
-
-
 @dataclass
 class RunOptions:
     scenario: Scenario
@@ -99,7 +95,7 @@ def launch(opts: RunOptions) -> dict:
     if "planner" in team.names and opts.external:
         raise ValueError("the planner commands every agent; it cannot leave some to --external")
     check_domain_id(opts.domain_id)
-    label = opts.policy + (f",external:{ids_text(list(opts.external))}" if opts.external else "")
+    label = opts.policy + (f",external:{','.join(map(str, opts.external))}" if opts.external else "")
     started = time.monotonic()
     warn_if_exposed()
     with Children("formic-run-", ros_environment(opts.domain_id), opts.log_dir) as run:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import os
 import time
+from contextlib import suppress
 
 import numpy as np
 import rclpy
@@ -27,7 +28,6 @@ from .ownership import Claim
 from . import convert, qos
 from .wire import read
 from .agent_host import WorldWatch, read_scenario
-from .lockstep import WorldLost
 from .trainer_node import apply_weights
 
 
@@ -127,7 +127,6 @@ class LearningHost:
 
     def __init__(self, agent_ids: list[int], cfg: TrainConfig, switch: str = "chunk", first_episode: int = 0,
                  namespace: str = qos.DEFAULT_NAMESPACE, name: str | None = None, torch_threads: int = 1):
-
         if switch not in SWITCH_MODES:
             raise ValueError(f"unknown weights switch {switch!r}; choose from {', '.join(SWITCH_MODES)}")
         torch.set_num_threads(torch_threads)
@@ -146,8 +145,8 @@ class LearningHost:
         self.rollouts_pub = node.create_publisher(Rollout, qos.ROLLOUTS, qos.ROLLOUT)
         self.played = ""  # scenario of the episode being (or last) played
         self.next_scenario = ""  # a scenario not played yet
-        self.scenario_json = ""  # the newest scenario seen (for WorldWatch)
-        self.horizon = 0  # its episode's steps
+        self.scenario_json = ""  # the newest scenario seen
+        self.horizon = -1  # its episode's steps (-1: none yet)
         self.playing = False
         self.episodes = 0  # episodes finished
         self.episode_rollouts = 0  # rollouts sent in the current episode
@@ -157,7 +156,6 @@ class LearningHost:
         self.wait_version: int | None = -1  # act only with weights newer than this (None: act now)
         self.answered_step, self.answer = -1, np.zeros(0, dtype=np.int64)
         self.waiting_since = time.monotonic()
-        self.warned_masks = False
 
     # ------------------------------------------------------------------------ inputs
     def _on_scenario(self, msg: ScenarioDescription) -> None:
@@ -181,16 +179,11 @@ class LearningHost:
         self.pump()
 
     # ---------------------------------------------------------------------- stepping
-    def _rows(self, msg: ObservationBatch) -> np.ndarray | None:
-        """Rows of this host's agents in the message, in id order; None unless all are there."""
-        rows = convert.rows_of(msg, self.ids)
-        return rows if (rows >= 0).all() else None
-
     def _take(self, msg: ObservationBatch) -> bool:
         """Deal with a received observation batch; False to keep holding it (a new episode's
         step 0 before its scenario)."""
-        rows = self._rows(msg)
-        if rows is None:
+        rows = convert.rows_of(msg, self.ids)  # this host's agents, in id order
+        if not (rows >= 0).all():
             return True  # a re-send for other hosts' agents
         step = int(msg.step)
         if self.ready is not None and step == self.ready[0].step and not msg.done:
@@ -209,9 +202,8 @@ class LearningHost:
         elif step != self.answered_step + 1:
             return True  # stale
         if not len(msg.train_masks):
-            if not self.warned_masks:
-                self.log.error("the observations carry no training masks: run the world with --training-masks")
-                self.warned_masks = True
+            self.log.error("the observations carry no training masks: run the world with --training-masks",
+                           once=True)
             return True
         batch = convert.decode_observation_batch(msg, rows)
         if not self.playing:
@@ -265,17 +257,10 @@ class LearningHost:
         self.actions_pub.publish(convert.encode_actions(batch.step, self.ids, self.answer))
 
 
-def serve_learning_agents(
-    agent_ids: list[int],
-    cfg: TrainConfig,
-    switch: str = "chunk",
-    first_episode: int = 0,
-    namespace: str = qos.DEFAULT_NAMESPACE,
-    name: str | None = None,
-    episodes: int | None = None,
-    domain_id: int | None = None,
-    torch_threads: int = 1,
-) -> int:
+def serve_learning_agents(agent_ids: list[int], cfg: TrainConfig, switch: str = "chunk",
+                          first_episode: int = 0, namespace: str = qos.DEFAULT_NAMESPACE,
+                          name: str | None = None, episodes: int | None = None, domain_id: int | None = None,
+                          torch_threads: int = 1) -> int:
     """Host learning agents until interrupted (or until ``episodes`` episodes are played and
     their rollouts delivered, or the world is gone); returns the episodes played."""
     from rclpy.duration import Duration
@@ -288,16 +273,12 @@ def serve_learning_agents(
         for node in host.nodes:
             executor.add_node(node)
         watch = WorldWatch(host.control)
-        try:
+        with suppress(KeyboardInterrupt):
             while not (episodes is not None and host.episodes >= episodes):
                 executor.spin_once(timeout_sec=0.2)
                 host.pump()  # also says so when the weights are late
-                if episodes is not None and watch.gone(host.scenario_json):
-                    if host.playing and host.answered_step + 1 < host.horizon:
-                        raise WorldLost(f"the world left at step {host.answered_step + 1} of {host.horizon}, "
-                                        "before the episode ended")
+                next_step = host.answered_step + 1 if host.playing else host.horizon
+                if episodes is not None and watch.ended(next_step, host.horizon):
                     break  # between episodes, or only the final observation was lost
             host.rollouts_pub.wait_for_all_acked(Duration(seconds=5.0))
-        except KeyboardInterrupt:
-            pass
         return host.episodes

@@ -99,17 +99,16 @@ class ActionInbox:
         if len(agent_ids) != len(actions):
             self.reject("malformed", 1, f"{source}: {len(agent_ids)} agent ids but {len(actions)} actions")
             return
+        ids = np.asarray(agent_ids, dtype=np.int64)
+        acts = np.asarray(actions, dtype=np.int64)
         if step != self.step or not self.is_open:
-            ids = np.asarray(agent_ids, dtype=np.int64)
             if (step == self.closed_step and (ids < self.n_agents).all()
-                    and (self.closed_actions[ids] == np.asarray(actions, dtype=np.int64)).all()):
+                    and (self.closed_actions[ids] == acts).all()):
                 self.duplicates += len(ids)
                 return
             reason = "old step" if step < self.step or (step == self.step and not self.is_open) else "future step"
-            self.reject(reason, len(agent_ids), f"{source}: step {step}, the world is at step {self.step}")
+            self.reject(reason, len(ids), f"{source}: step {step}, the world is at step {self.step}")
             return
-        ids = np.asarray(agent_ids, dtype=np.int64)
-        acts = np.asarray(actions, dtype=np.int64)
         unknown = ids >= self.n_agents
         if unknown.any():
             self.reject("unknown agent", int(unknown.sum()),
@@ -140,24 +139,26 @@ class Lockstep:
         self.missed = np.zeros(n_agents, dtype=np.int64)
         self.last_answered = np.full(n_agents, -1, dtype=np.int64)  # last step each agent answered in time
 
-    def collect(self, executor, deadline: float, need_all: bool, resend: Callable[[], None] | None = None,
-                resend_s: float = RESEND_S) -> None:
+    def collect(self, executor, deadline: float, need_all: bool,
+                resend: Callable[[np.ndarray], None] | None = None, resend_s: float = RESEND_S) -> None:
         """Spin until every agent answered (``need_all``) or ``deadline`` (monotonic s);
-        ``resend`` every ``resend_s`` meanwhile (an observation lost under load)."""
+        ``resend(missing)`` every ``resend_s`` meanwhile (an observation lost under load;
+        ``missing``: a mask of the agents that have not answered)."""
         next_resend = time.monotonic() + resend_s
         while not (need_all and self.inbox.received.all()):
             now = time.monotonic()
             if now >= deadline:
                 return
             if resend is not None and now >= next_resend:
-                resend()
+                resend(~self.inbox.received)
                 next_resend = now + resend_s
             executor.spin_once(timeout_sec=min(deadline - now, next_resend - now, 0.1))
 
-    def await_actions(self, executor, resend: Callable[[], None], started: float, tick: float) -> float:
-        """Wait for the actions of the open step as the mode says (``resend``: the current
-        observations to the agents that have not answered); returns the free-running clock's
-        tick (the moment this step is due)."""
+    def await_actions(self, executor, resend: Callable[[np.ndarray], None], started: float,
+                      tick: float) -> float:
+        """Wait for the actions of the open step as the mode says (``resend(missing)``: the
+        current observations to the agents that have not answered); returns the free-running
+        clock's tick (the moment this step is due)."""
         now = time.monotonic()
         if self.inbox.step == 0:
             self.collect(executor, now + self.startup_timeout_s, need_all=True, resend=resend)
@@ -184,8 +185,7 @@ class Lockstep:
         CPU times of the start, the first step and the end)."""
         steps = scenario.config.episode_steps - 1  # timed steps (after step 0)
         stepping_s = clock["ended"] - clock["stepping_from"]
-        summary = book.summary(scenario, label)
-        summary.update(
+        return book.summary(scenario, label) | dict(
             food_curve=book.food_curve.tolist(),
             missed_actions=int(self.missed.sum()),
             missed_per_agent=self.missed.tolist(),
@@ -197,7 +197,6 @@ class Lockstep:
             wall_s=clock["ended"] - clock["started"],
             world_cpu_ms_per_step=(clock["cpu_to"] - clock["cpu_from"]) / max(1, steps) * 1e3,
         )
-        return summary
 
     def count_misses(self, t: int) -> None:
         self.last_answered[self.inbox.received] = t

@@ -1,24 +1,14 @@
-"""Who may drive an agent: each agent is bound to one owner, the node that claims it.
+"""Who may drive an agent: each agent is bound to one owner, the node that claims it (the rules
+for users: docs/ros.md, "Who may drive an agent").
 
-A driver node (agent host, planner, learning host, a user's own agent node) publishes a latched
-claim on ``claims`` (``std_msgs/String``, JSON ``{"owner": fully qualified node name, "token":
-unique per claim, "agents": [...], "actions": its own batch topic or null}``); the world binds
-each unowned agent to the first claim and confirms the bindings on ``owners`` (latched JSON
-``{"owners": {agent: token}}``). A second claim for an owned agent is refused with an ERROR (the
-first owner is kept) unless the first owner's node has left the graph (a restarted host) and
-its claim is older than ``TAKEOVER_GRACE_S`` (a node's claim can arrive before the node itself
-shows in the graph).
-
-A driver answers only once its claim is ready (:meth:`Claim.ready`): the world has confirmed it,
-and the recorders the world waits for (``owners`` says how many) have matched the driver's action
-topics, so a recording holds every action from step 0 on and no action is rejected as unclaimed.
-
-Every action is checked against its agent's owner: batches count only on the owner's own topic,
-per-agent actions only on ``agent_K/action`` while the graph lists node ``agent_K`` of a
-per-agent owner as a publisher there (cached, re-read at most every ``GRAPH_REFRESH_S``).
-Anything else is rejected ("not owner", "unclaimed"), logged once per source and counted in
-the summary. rclpy tells no publisher apart on one topic, so this guards against mistakes and
-stray nodes, not against a node that deliberately publishes on an owner's topic.
+A driver node publishes a latched claim on ``claims`` (JSON ``{"owner": fully qualified node
+name, "token": unique per claim, "agents": [...], "actions": its own batch topic or null}``)
+and answers only once :meth:`Claim.ready`. The world (:class:`Ownership`) binds each unowned
+agent to the first claim, confirms on ``owners`` (latched JSON ``{"owners": {agent: token},
+"recorders": how many the drivers wait for}``), refuses a second claim for an owned agent unless
+the first owner has left the graph, and checks every action against its agent's owner. rclpy
+tells no publisher apart on one topic, so this guards against mistakes and stray nodes, not
+against a node that deliberately publishes on an owner's topic.
 """
 
 from __future__ import annotations

@@ -10,6 +10,7 @@ After the replica reaches step t it plans and publishes an ActionBatch for all a
 from __future__ import annotations
 
 import time
+from contextlib import suppress
 
 import numpy as np
 from formic_interfaces.msg import ActionBatch, ScenarioDescription, WorldState
@@ -22,7 +23,6 @@ from formic_world import World
 from .ownership import Claim
 from . import convert, qos
 from .agent_host import WorldWatch
-from .lockstep import WorldLost
 
 RESEND_S = 1.0  # re-send the last actions when the world has not moved on for this long
 
@@ -41,6 +41,7 @@ class PlannerNode(Node):
         self.create_subscription(WorldState, qos.STATE, self._on_state, qos.STREAM)
         self.world: World | None = None
         self.scenario_json = ""
+        self.horizon = -1  # its episode's steps (-1: no scenario yet)
         self.pending: ActionBatch | None = None
         self.sent_at = -np.inf
         self.digests: dict[int, str] = {}  # replica digests and world digests not yet compared
@@ -53,7 +54,7 @@ class PlannerNode(Node):
         if msg.scenario_json == self.scenario_json:
             return
         scenario = convert.decode_scenario(msg)
-        self.scenario_json = msg.scenario_json
+        self.scenario_json, self.horizon = msg.scenario_json, scenario.config.episode_steps
         self.world = World(scenario)
         self.planner.reset(scenario.config.n_agents, scenario.seed)
         if self.claim is None:  # the planner drives the whole team
@@ -109,11 +110,8 @@ class PlannerNode(Node):
         self.sent_at = now
 
 
-def serve_planner(
-    namespace: str = qos.DEFAULT_NAMESPACE,
-    once: bool = False,
-    domain_id: int | None = None,
-) -> int:
+def serve_planner(namespace: str = qos.DEFAULT_NAMESPACE, once: bool = False,
+                  domain_id: int | None = None) -> int:
     """Plan until interrupted (or, with ``once``, until an episode ends); returns the number
     of replica mismatches seen."""
     from .env import ros_session
@@ -122,15 +120,11 @@ def serve_planner(
         node = PlannerNode(namespace)
         executor.add_node(node)
         watch = WorldWatch(node)
-        try:
+        with suppress(KeyboardInterrupt):
             while not (once and node.finished):
                 executor.spin_once(timeout_sec=0.1)
                 node.tick()
-                if once and not node.finished and watch.gone(node.scenario_json):
-                    if node.world.t + 1 >= node.world.config.episode_steps:
-                        break  # it ended: only the final state was lost
-                    raise WorldLost(f"the world left at step {node.world.t} of {node.world.config.episode_steps}, "
-                                    "before the episode ended")
-        except KeyboardInterrupt:
-            pass
+                next_step = node.world.t + 1 if node.world else 0  # the replica has planned world.t
+                if once and not node.finished and watch.ended(next_step, node.horizon):
+                    break  # only the final state was lost
         return node.mismatches

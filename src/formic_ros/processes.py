@@ -16,6 +16,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from contextlib import suppress
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -50,21 +51,13 @@ class Child:
         return bool(self.process.poll())
 
     def signal(self, signum: int) -> None:
-        try:
+        with suppress(ProcessLookupError):
             os.killpg(self.process.pid, signum)
-        except ProcessLookupError:
-            pass
 
     def wait(self, timeout_s: float) -> None:
         """Wait up to ``timeout_s`` for the child to exit (it may still run afterwards)."""
-        try:
+        with suppress(subprocess.TimeoutExpired):
             self.process.wait(timeout=max(0.0, timeout_s))
-        except subprocess.TimeoutExpired:
-            pass
-
-    @property
-    def name_and_status(self) -> tuple[str, int]:
-        return self.name, self.process.wait()
 
 
 SHM_DIR = Path("/dev/shm")
@@ -105,7 +98,7 @@ def stop_all(children: list[Child]) -> dict[str, int]:
     for child in children:
         if child.alive:
             child.signal(signal.SIGKILL)
-    return dict(child.name_and_status for child in children)
+    return {child.name: child.process.wait() for child in children}
 
 
 def watch(main: Child, others: list[Child], timeout_s: float | None, what: str, poll_s: float = 0.2,
@@ -126,20 +119,6 @@ def watch(main: Child, others: list[Child], timeout_s: float | None, what: str, 
         main.wait(poll_s)
     if main.process.returncode != 0:
         raise RuntimeError(f"the {main.name} exited with status {main.process.returncode}")
-
-
-def spawn(name: str, spec: dict, spec_dir: Path, env: dict[str, str], stdout=None, stderr=None,
-          grace_s: tuple[float, float] = STOP_GRACE_S) -> Child:
-    """Start node process ``name`` (:mod:`formic_ros.node_process`) on ``spec``, written as
-    ``spec_dir/NAME.options.json``; in its own session, killed if this process dies."""
-    options = Path(spec_dir) / f"{name}.options.json"
-    options.write_text(json.dumps(spec))
-    command = [sys.executable, "-m", "formic_ros.node_process", "--options", str(options)]
-    process = subprocess.Popen(
-        command, env=env, stdout=stdout, stderr=stderr, stdin=subprocess.DEVNULL,
-        start_new_session=True, preexec_fn=_die_with_parent,
-    )
-    return Child(name, process, grace_s)
 
 
 class Children:
@@ -168,18 +147,24 @@ class Children:
             remove_stale_shm()  # what a child killed with SIGKILL left behind
 
     def start(self, name: str, spec: dict, stdout=None, grace_s: tuple[float, float] = STOP_GRACE_S) -> Child:
-        """Child ``name`` on ``spec``: its output (stdout too, unless given) to its log."""
-        log = self._log(name)
-        streams = (stdout, log) if stdout is not None else (log, subprocess.STDOUT)
-        self.children.append(spawn(name, spec, self.dir, self.env, *streams, grace_s=grace_s))
+        """Start node process ``name`` (:mod:`formic_ros.node_process`) on ``spec``, written as
+        ``DIR/NAME.options.json``, in its own session and killed if this process dies; its output
+        (stdout too, unless given) to its log."""
+        log = sys.stderr
+        if self.log_dir is not None:
+            Path(self.log_dir).mkdir(parents=True, exist_ok=True)
+            log = open(Path(self.log_dir) / f"{name}.log", "w")
+            self.files.append(log)
+        out, err = (stdout, log) if stdout is not None else (log, subprocess.STDOUT)
+        options = self.dir / f"{name}.options.json"
+        options.write_text(json.dumps(spec))
+        process = subprocess.Popen(
+            [sys.executable, "-m", "formic_ros.node_process", "--options", str(options)], env=self.env,
+            stdout=out, stderr=err, stdin=subprocess.DEVNULL, start_new_session=True,
+            preexec_fn=_die_with_parent,
+        )
+        self.children.append(Child(name, process, grace_s))
         return self.children[-1]
-
-    def _log(self, name: str):
-        if self.log_dir is None:
-            return sys.stderr
-        Path(self.log_dir).mkdir(parents=True, exist_ok=True)
-        self.files.append(open(Path(self.log_dir) / f"{name}.log", "w"))
-        return self.files[-1]
 
     def stdout(self, name: str):
         """A file in :attr:`dir` for a child's stdout (read back with :class:`JsonLines`)."""

@@ -1,16 +1,14 @@
 """Recording and republishing over ROS (the files themselves are :mod:`formic_record`'s).
 
-The recorder node: every ForMIC topic (and ``/clock``) into a rosbag2 recording with MCAP
-storage, as the CDR bytes that arrived (``raw=True``: nothing is decoded on the hot path).
-
-The world's topics are subscribed at start, and every per-agent topic as soon as the latched
-scenario description says how many agents there are, so the world can wait for the recorder
-(:func:`formic_ros.graph.recorders_matched`) before it steps; the graph is polled for the rest (anything a
-user's node publishes in the namespace), with the QoS its publishers offer. The latched scenario
-description becomes the recording's run description (seed, scenario, configuration digest,
-policies, model checkpoint id, package version). SIGINT, SIGTERM or SIGHUP closes the
-recording cleanly (further signals wait for the close); a SIGKILL leaves every chunk
-flushed so far readable (see :mod:`formic_record.bag`).
+The recorder node writes every ForMIC topic (and ``/clock``) into a rosbag2 recording with MCAP
+storage, as the CDR bytes that arrived (``raw=True``: nothing is decoded on the hot path): the
+world's topics from the start and the per-agent ones once the scenario names the team, so the
+world can wait for the recorder (:func:`formic_ros.graph.recorders_matched`) before it steps;
+anything else in the namespace once the graph shows a publisher, with the QoS it offers. The
+latched scenario description becomes the recording's run description (seed, scenario,
+configuration digest, policies, model checkpoint id, package version). A stop signal closes the
+recording cleanly (:func:`record`); a SIGKILL leaves every chunk flushed so far readable (see
+:mod:`formic_record.bag`).
 """
 
 from __future__ import annotations
@@ -46,25 +44,23 @@ def message_class(msgtype: str):
 
 
 def subscription_qos(latched: bool) -> QoSProfile:
-    if latched:  # keep-all too: a depth-1 reader drops a map that a newer one follows quickly
-        return QoSProfile(history=HistoryPolicy.KEEP_ALL, depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
-    # Keep all: a reader history that drops its oldest samples loses messages whenever this
-    # process falls behind (measured: applied actions lost at 1,000 steps/s); keep-all holds
-    # them until the callbacks catch up (the world's logs keep LOG_DEPTH for the same reason).
-    return QoSProfile(history=HistoryPolicy.KEEP_ALL, depth=STREAM_DEPTH,
-                      reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
+    """Reliable and keep-all, transient-local when ``latched``. Keep all: a reader history that
+    drops its oldest samples loses messages whenever this process falls behind (measured: applied
+    actions lost at 1,000 steps/s); keep-all holds them until the callbacks catch up (the world's
+    logs keep LOG_DEPTH for the same reason). Latched too: a depth-1 reader drops a map that a
+    newer one follows quickly."""
+    return QoSProfile(history=HistoryPolicy.KEEP_ALL, depth=1 if latched else STREAM_DEPTH,
+                      reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)
 
 
 def adapted_qos(offered: list[QoSProfile]) -> QoSProfile:
     """What ``ros2 bag record`` does: reliable only if every publisher is, transient-local
     only if every publisher is (otherwise some would not match)."""
-    reliable = all(p.reliability == ReliabilityPolicy.RELIABLE for p in offered)
     latched = bool(offered) and all(p.durability == DurabilityPolicy.TRANSIENT_LOCAL for p in offered)
     profile = subscription_qos(latched)
-    if not reliable:
-        profile = QoSProfile(history=profile.history, depth=profile.depth,
-                             reliability=ReliabilityPolicy.BEST_EFFORT, durability=profile.durability)
+    if not all(p.reliability == ReliabilityPolicy.RELIABLE for p in offered):
+        profile.reliability = ReliabilityPolicy.BEST_EFFORT
     return profile
 
 
@@ -122,7 +118,6 @@ class Recorder(Node):
         self.counts: Counter = Counter()
         self.skipped: dict[str, str] = {}
         self._recorded: dict[str, object] = {}
-        self._store = writer.typestore
         run_info = {"package_version": package_version()}
         if options.checkpoint_id:
             run_info["checkpoint_id"] = options.checkpoint_id
@@ -186,7 +181,7 @@ class Recorder(Node):
             self._describe_run(data)
 
     def _describe_run(self, data: bytes) -> None:
-        msg = self._store.deserialize_cdr(data, SCENARIO_TYPE)
+        msg = self.writer.typestore.deserialize_cdr(data, SCENARIO_TYPE)
         self._subscribe_agents(msg.scenario_json)
         self.writer.set_run_info({
             "seed": str(msg.seed),
@@ -206,8 +201,7 @@ def record(out: str | Path, options: RecorderOptions, domain_id: int | None = No
     from .env import check_domain_id, ros_session, stop_requests
 
     check_domain_id(domain_id)  # before anything is written
-    counts: dict = {}
-    skipped: dict = {}
+    counts, skipped = {}, {}
     with stop_requests() as stop:
         writer = BagWriter(out, chunk_bytes=options.chunk_bytes, flush_seconds=options.flush_seconds)
         try:

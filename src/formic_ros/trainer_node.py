@@ -33,19 +33,15 @@ from . import qos
 DEFAULT_MAX_LAG = 4  # weights versions a rollout may lag behind and still be learned from
 
 
-# ----------------------------------------------------------------------------- messages
 def apply_weights(policy, msg) -> int:
-    """Load a Weights message into a learned policy (``weights_only`` loading); returns its
-    version. Hosts call this between episodes."""
+    """Load a Weights message into a learned policy (or anything with its ``net`` and
+    ``load_state_dict``; ``weights_only`` loading); returns its version."""
     payload = read_checkpoint(bytes(msg.data))
     config = NetworkConfig.from_dict(payload["network"])
     if config != policy.net.config:
         raise CheckpointError(f"weights for network {config} do not fit the policy's {policy.net.config}")
     policy.load_state_dict(payload["state_dict"])
     return int(msg.version)
-
-
-# ----------------------------------------------------------------------------- learning
 
 
 @torch.no_grad()
@@ -94,8 +90,7 @@ class RemoteLearner:
         self.cfg, self.max_lag, self.log = cfg, max_lag, log
         self.behaviour = copy.deepcopy(self.learner.net)  # same memory format: same arithmetic
         self.versions: OrderedDict[int, dict[str, torch.Tensor]] = OrderedDict()
-        self.lstm: dict[str, tuple[int, tuple[torch.Tensor, torch.Tensor]]] = {}  # host -> (episode, state)
-        self.episode_food: dict[str, tuple[int, int, float]] = {}  # host -> (episode, steps, food so far)
+        self.hosts: dict[str, tuple] = {}  # host -> (its episode, LSTM state, steps and food so far)
         self.ended = -1  # the newest episode ended
         self.dropped = 0
         self._remember_version()
@@ -120,21 +115,19 @@ class RemoteLearner:
                      f"now {self.version} (keeping {self.max_lag} older versions)")
             return None
         self.behaviour.load_state_dict(behaviour)
-        previous = self.lstm.get(host)
-        state = previous[1] if previous is not None and previous[0] == episode else None
+        same, state, steps, total = self.hosts.get(host, (episode, None, 0, 0.0))
+        if same != episode:  # the host's next episode: its LSTM state starts afresh
+            state, steps, total = None, 0, 0.0
         if state is not None and state[0].shape[1] != rollout["actions"].shape[1]:
             state = None
         outputs, final_state = behaviour_outputs(self.behaviour, self.cfg, rollout, state)
-        self.lstm[host] = (episode, final_state)
+        steps, total = steps + rollout["actions"].shape[0], total + float(food)
+        self.hosts[host] = (episode, final_state, steps, total)
         stats = self.learner.learn({**rollout, **outputs})
         self._remember_version()
         stats["lag"] = float(self.version - 1 - weights_version)
         stats["rollout_food"] = float(food)
         self.learner.record("ros", stats, self.version)
-        same = self.episode_food.get(host, (-1, 0, 0.0))
-        steps, total = (same[1], same[2]) if same[0] == episode else (0, 0.0)
-        steps, total = steps + rollout["actions"].shape[0], total + float(food)
-        self.episode_food[host] = (episode, steps, total)
         if steps >= self.cfg.episode_steps and episode > self.ended:  # as `formic train` ends its episodes
             self.ended = episode
             stats["episode_food"] = total
@@ -150,7 +143,6 @@ class RemoteLearner:
         self.learner.close()
 
 
-# ----------------------------------------------------------------------------- the node
 def serve_trainer(cfg: TrainConfig, run_dir: Path, resume: bool = True, namespace: str = qos.DEFAULT_NAMESPACE,
                   domain_id: int | None = None, max_updates: int | None = None, max_rollouts: int | None = None,
                   max_lag: int = DEFAULT_MAX_LAG, log: Callable[[str], None] = print) -> dict:
@@ -169,8 +161,7 @@ def serve_trainer(cfg: TrainConfig, run_dir: Path, resume: bool = True, namespac
     pending: deque = deque()
     updates_here = rollouts_here = 0
     started = time.monotonic()
-    with stop_requests() as stop, contextlib.ExitStack() as closing:  # the checkpoint is saved whatever comes
-        closing.callback(learner.close)
+    with stop_requests() as stop, contextlib.closing(learner):  # the checkpoint is saved whatever comes
         with ros_session(domain_id, interrupt=False) as executor:
             node = Node("trainer", namespace=namespace)
             executor.add_node(node)

@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 from builtin_interfaces.msg import Time
-from geometry_msgs.msg import Point
-from nav_msgs.msg import OccupancyGrid
+from geometry_msgs.msg import Point, Vector3
+from nav_msgs.msg import MapMetaData, OccupancyGrid
 from rosgraph_msgs.msg import Clock
-from std_msgs.msg import ColorRGBA
+from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker, MarkerArray
 
 from formic_world import World
@@ -34,15 +34,8 @@ def occupancy_grid(world: World, stamp: Time, frame: str = "map") -> OccupancyGr
     values[world.grid == 1] = 100
     values[world.grid == RESOURCE] = 80
     values[world.grid == CACHE] = 90
-    msg = OccupancyGrid()
-    msg.header.stamp = stamp
-    msg.header.frame_id = frame
-    msg.info.map_load_time = stamp
-    msg.info.resolution = 1.0
-    msg.info.width = width
-    msg.info.height = height
-    msg.data = typed("b", values[::-1], np.int8)
-    return msg
+    return OccupancyGrid(header=Header(stamp=stamp, frame_id=frame), data=typed("b", values[::-1], np.int8),
+                         info=MapMetaData(map_load_time=stamp, resolution=1.0, width=width, height=height))
 
 
 def _colour(r: float, g: float, b: float) -> ColorRGBA:
@@ -55,17 +48,11 @@ def agent_markers(world: World, stamp: Time, frame: str = "map") -> MarkerArray:
     empty, loaded, food = _colour(0.2, 0.4, 1.0), _colour(1.0, 0.55, 0.0), _colour(0.1, 0.8, 0.2)
 
     def cubes(marker_id: int, ns: str, cells: np.ndarray, colours: list[ColorRGBA]) -> Marker:
-        m = Marker(ns=ns, id=marker_id, type=Marker.CUBE_LIST, action=Marker.ADD)
-        m.header.stamp = stamp
-        m.header.frame_id = frame
-        m.pose.orientation.w = 1.0
-        m.scale.x = m.scale.y = m.scale.z = 0.9
-        m.points = [Point(x=float(c) + 0.5, y=float(height - 1 - r) + 0.5, z=0.5) for r, c in cells]
-        m.colors = colours
-        return m
+        points = [Point(x=float(c) + 0.5, y=float(height - 1 - r) + 0.5, z=0.5) for r, c in cells]
+        return Marker(header=Header(stamp=stamp, frame_id=frame), ns=ns, id=marker_id, type=Marker.CUBE_LIST,
+                      action=Marker.ADD, scale=Vector3(x=0.9, y=0.9, z=0.9), points=points, colors=colours)
 
-    carrying = world.carrying
     return MarkerArray(markers=[
-        cubes(0, "agents", world.pos, [loaded if c else empty for c in carrying]),
+        cubes(0, "agents", world.pos, [loaded if c else empty for c in world.carrying]),
         cubes(1, "resources", world.resource_pos, [food] * len(world.resource_pos)),
     ])

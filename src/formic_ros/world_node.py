@@ -1,18 +1,11 @@
 """The world node: owns the simulation core and steps it with its agents over ROS.
 
-Lockstep (default): publish the observations of step t, wait until every agent has answered
-for step t or the step's deadline passes (a missing agent does nothing that step: NO_ACTION,
-counted and logged), step, repeat. Free-running (``rate_hz``): step at a fixed rate with
-whatever actions arrived, as a team of robots would. Either way, step 0 waits for every agent
-(up to the start-up timeout) and re-sends its observations, so hosts that are still
-discovering the graph do not start the episode behind.
-
-Observations go out batched on ``observations`` when that topic has a subscriber, and per agent
-on ``agent_K/observation`` only where that topic has one. Actions come in on ``actions``
-(batches, any subset of agents) and ``agent_K/action``; every action is validated and checked
-against its agent's owner (:mod:`formic_ros.ownership`); a bad one is rejected and counted.
-The lockstep bookkeeping (inbox, deadlines, re-sends, misses) is :mod:`formic_ros.lockstep`;
-training mode :mod:`formic_ros.training_world`.
+Lockstep (default) or free-running (``rate_hz``), step 0 waiting for every agent, as docs/ros.md
+("Lockstep, deadlines and free-running") describes. Observations go out batched on
+``observations`` and per agent on ``agent_K/observation``, each only while it has a subscriber;
+actions come in on ``actions`` and ``agent_K/action``, validated and checked against their
+agent's owner (:mod:`formic_ros.ownership`). The lockstep bookkeeping (inbox, deadlines,
+re-sends, misses) is :mod:`formic_ros.lockstep`; training mode :mod:`formic_ros.training_world`.
 """
 
 from __future__ import annotations
@@ -232,7 +225,7 @@ class WorldNode(Node):
                 if finish is not None:
                     finish()
                 t0 = time.monotonic()
-                resend = functools.partial(self._resend, result)
+                resend = functools.partial(self._publish_observations, result)
                 tick = self.lockstep.await_actions(executor, resend, started, tick)
                 self.lockstep.count_misses(t)
                 actions = self.inbox.close()
@@ -261,9 +254,6 @@ class WorldNode(Node):
         )
         return summary
 
-    def _resend(self, result: StepResult) -> None:
-        self._publish_observations(result, ~self.inbox.received)
-
     def _finish_step(self, book: EpisodeStats, t: int, actions: np.ndarray, loads_before: np.ndarray,
                      queued_before: np.ndarray, wait_s: float, step_s: float, final: bool) -> None:
         """Step ``t``'s bookkeeping and messages (applied actions, state, viewers). The world
@@ -277,13 +267,8 @@ class WorldNode(Node):
             self.view.publish(self.world, final=final)
 
 
-def serve_world(
-    scenario: Scenario,
-    options: WorldNodeOptions,
-    domain_id: int | None = None,
-    on_summary: Callable[[dict], None] | None = None,
-    stay: bool = False,
-) -> dict:
+def serve_world(scenario: Scenario, options: WorldNodeOptions, domain_id: int | None = None,
+                on_summary: Callable[[dict], None] | None = None, stay: bool = False) -> dict:
     """Run the world node for one episode in this process. ``on_summary`` gets the summary as
     soon as the episode ends; with ``stay`` the node then keeps serving the latched scenario
     and summary until interrupted."""
