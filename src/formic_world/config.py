@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import math
 from dataclasses import dataclass, field
 from fractions import Fraction
 from functools import cached_property
@@ -90,18 +91,13 @@ class WorldConfig:
             raise ValueError(f"world must be at least 12x12, got {self.height}x{self.width}")
         if self.n_agents < 1:
             raise ValueError("n_agents must be >= 1")
-        if self.capacity not in CAPACITY_MODES:
-            raise ValueError(f"capacity must be one of {CAPACITY_MODES}, got {self.capacity!r}")
-        if self.timing not in TIMINGS:
-            raise ValueError(f"timing must be one of {TIMINGS}, got {self.timing!r}")
-        if self.agent_order not in AGENT_ORDERS:
-            raise ValueError(f"agent_order must be one of {AGENT_ORDERS}, got {self.agent_order!r}")
-        if self.training_filter not in TRAINING_FILTERS:
-            raise ValueError(f"training_filter must be one of {TRAINING_FILTERS}, got {self.training_filter!r}")
-        if self.pheromone_variant not in PHEROMONE_VARIANTS:
-            raise ValueError(
-                f"pheromone_variant must be one of {PHEROMONE_VARIANTS}, got {self.pheromone_variant!r}"
-            )
+        for name, allowed in (
+            ("capacity", CAPACITY_MODES), ("timing", TIMINGS), ("agent_order", AGENT_ORDERS),
+            ("training_filter", TRAINING_FILTERS), ("pheromone_variant", PHEROMONE_VARIANTS),
+        ):
+            value = getattr(self, name)
+            if value not in allowed:
+                raise ValueError(f"{name} must be one of {allowed}, got {value!r}")
         if self.view_size % 2 != 1 or self.view_size < 3:
             raise ValueError(f"view_size must be odd and >= 3, got {self.view_size}")
         if not 0.0 <= self.obstacle_density < 0.5:
@@ -121,35 +117,26 @@ class WorldConfig:
     @cached_property  # the world steps read it: Fractions cost 30% of a 16-agent step
     def load_denominator(self) -> int:
         """Loads are integers in units of 1/D so a load takes exactly 1/rate steps."""
-        denominators = []
-        for rate in (self.gather_rate, self.dropoff_rate):
-            frac = Fraction(rate).limit_denominator(10_000)
-            if abs(float(frac) - rate) > 1e-12 or frac.denominator > 10_000:
-                raise ValueError(f"rate {rate} is not a simple fraction")
-            denominators.append(frac.denominator)
-        lcm = 1
-        for d in denominators:
-            lcm = lcm * d // _gcd(lcm, d)
-        return lcm
+        return math.lcm(_fraction(self.gather_rate).denominator, _fraction(self.dropoff_rate).denominator)
 
     @cached_property
     def gather_ticks(self) -> int:
-        return int(Fraction(self.gather_rate).limit_denominator(10_000) * self.load_denominator)
+        return int(_fraction(self.gather_rate) * self.load_denominator)
 
     @cached_property
     def dropoff_ticks(self) -> int:
-        return int(Fraction(self.dropoff_rate).limit_denominator(10_000) * self.load_denominator)
+        return int(_fraction(self.dropoff_rate) * self.load_denominator)
 
     @cached_property
     def gather_holds(self) -> bool:
         """Reference timing: a full load is released one service step late when the
         reference's floating-point accumulation of ``gather_rate`` falls short of 1."""
-        return self.timing == "reference" and _float_steps(self.gather_rate) > -(-self.load_denominator // self.gather_ticks)
+        return self._holds(self.gather_rate, self.gather_ticks)
 
     @cached_property
     def dropoff_holds(self) -> bool:
         """As :attr:`gather_holds`, for emptying at a cache (0.5 adds up exactly: no hold)."""
-        return self.timing == "reference" and _float_steps(self.dropoff_rate) > -(-self.load_denominator // self.dropoff_ticks)
+        return self._holds(self.dropoff_rate, self.dropoff_ticks)
 
     @cached_property
     def gather_steps(self) -> int:
@@ -160,6 +147,9 @@ class WorldConfig:
     def dropoff_steps(self) -> int:
         """Service steps to empty a unit load at a cache (2 under both timings)."""
         return -(-self.load_denominator // self.dropoff_ticks) + int(self.dropoff_holds)
+
+    def _holds(self, rate: float, ticks: int) -> bool:
+        return self.timing == "reference" and _float_steps(rate) > -(-self.load_denominator // ticks)
 
     @property
     def serve_after_move_up(self) -> bool:
@@ -181,14 +171,12 @@ class WorldConfig:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> "WorldConfig":
-        known = {f.name for f in dataclasses.fields(cls)}
-        unknown = set(data) - known
+        unknown = set(data) - {f.name for f in dataclasses.fields(cls)}
         if unknown:
             raise ValueError(f"unknown world configuration keys: {sorted(unknown)}")
         data = dict(data)
         if "rewards" in data:
-            reward_keys = {f.name for f in dataclasses.fields(RewardConfig)}
-            bad = set(data["rewards"]) - reward_keys
+            bad = set(data["rewards"]) - {f.name for f in dataclasses.fields(RewardConfig)}
             if bad:
                 raise ValueError(f"unknown reward keys: {sorted(bad)}")
             data["rewards"] = RewardConfig(**data["rewards"])
@@ -210,10 +198,12 @@ def _float_steps(rate: float) -> int:
     return steps
 
 
-def _gcd(a: int, b: int) -> int:
-    while b:
-        a, b = b, a % b
-    return a
+def _fraction(rate: float) -> Fraction:
+    """``rate`` as an exact fraction with a denominator of at most 10 000."""
+    frac = Fraction(rate).limit_denominator(10_000)
+    if abs(float(frac) - rate) > 1e-12:
+        raise ValueError(f"rate {rate} is not a simple fraction")
+    return frac
 
 
 def resource_count_range(height: int, width: int) -> tuple[int, int]:

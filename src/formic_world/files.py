@@ -29,8 +29,3 @@ def atomic_open(path: str | os.PathLike, mode: str = "w", **kwargs) -> Iterator[
         Path(tmp).unlink(missing_ok=True)
         raise
 
-
-def atomic_write_text(path: str | os.PathLike, text: str) -> None:
-    with atomic_open(path) as handle:
-        handle.write(text)
-

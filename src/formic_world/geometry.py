@@ -7,7 +7,6 @@ import numpy as np
 # Actions 0-3 are moves in these directions; 4 is JOIN (SPEC §4). Row index grows southwards.
 NORTH, EAST, SOUTH, WEST, JOIN = 0, 1, 2, 3, 4
 N_ACTIONS = 5
-ACTION_NAMES = ("north", "east", "south", "west", "join")
 DIRECTION_DELTAS = np.array([[-1, 0], [0, 1], [1, 0], [0, -1]], dtype=np.int64)
 
 # Cell kinds of the static grid. Resource and cache cells are impassable.
@@ -31,9 +30,7 @@ def nest_centre(height: int, width: int) -> tuple[float, float]:
 
 def queue_cells(anchor: tuple[int, int], direction: int, length: int) -> np.ndarray:
     """Cells of a straight queue: spot 0 touches ``anchor`` and spots run in ``direction``."""
-    dr, dc = DIRECTION_DELTAS[direction]
-    k = np.arange(1, length + 1)
-    return np.stack([anchor[0] + dr * k, anchor[1] + dc * k], axis=1).astype(np.int64)
+    return strip_cells(anchor, direction, length)[1:-1]
 
 
 def strip_cells(anchor: tuple[int, int], direction: int, length: int) -> np.ndarray:

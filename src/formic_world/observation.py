@@ -86,29 +86,22 @@ class ObservationBuilder:
         qlen = w.config.queue_len
         count, head = w.queue_count, w.queue_head
         spot = queue_entry_spot(count, head, qlen)
-        # -1 (infinite) for caches; resource queues read their resource (a world may have none)
-        res_q = ~w.queue_is_cache
-        remaining = np.full(len(count), -1, dtype=np.int64)
-        capacity = np.full(len(count), -1, dtype=np.int64)
-        remaining[res_q] = w.resource_remaining[w.queue_resource[res_q]]
-        capacity[res_q] = w.resource_capacity[w.queue_resource[res_q]]
+        # Queues 0-3 (the caches) read -1, infinite; queue 4+i reads resource i (there may be none).
+        remaining = np.concatenate([[-1] * 4, w.resource_remaining])
+        capacity = np.concatenate([[-1] * 4, w.resource_capacity])
         accepts = (spot >= 0) & ((remaining < 0) | (remaining > count * w.load_full))
         q = np.flatnonzero(accepts)
         entry = w.queue_cells[q, spot[q]]
         value = np.where(remaining[q] < 0, 1.0, remaining[q] / np.maximum(capacity[q], 1)).astype(np.float32)
         channel = np.where(w.queue_is_cache[q], CH_CACHE_ENTRY, CH_RESOURCE_ENTRY)
-        height, width = w.grid.shape
         r = self.radius
-        neighbours = entry[:, None, :] + DIRECTION_DELTAS[None, :, :]  # (k, 4, 2)
-        inside = (
-            (neighbours[..., 0] >= 0) & (neighbours[..., 0] < height)
-            & (neighbours[..., 1] >= 0) & (neighbours[..., 1] < width)
-        )
-        nr = np.clip(neighbours[..., 0], 0, height - 1)
-        nc = np.clip(neighbours[..., 1], 0, width - 1)
-        free = inside & (w.grid[nr, nc] == FREE)
+        # Neighbours in padded coordinates (the padding is at least 1 wide): the blocked
+        # channel reads 0 exactly on free in-bounds cells.
+        neighbours = entry[:, None, :] + DIRECTION_DELTAS[None, :, :] + r  # (k, 4, 2)
+        nr, nc = neighbours[..., 0], neighbours[..., 1]
+        free = self.maps[CH_BLOCKED, nr, nc] == 0
         k_idx, _ = np.nonzero(free)
         # Where cells coincide the larger value wins: entry cells are distinct within a channel
         # (queue strips never overlap), and the neighbours' 1.0, drawn last, is the maximum.
         self.maps[channel, entry[:, 0] + r, entry[:, 1] + r] = value
-        self.maps[channel[k_idx], nr[free] + r, nc[free] + r] = 1.0
+        self.maps[channel[k_idx], nr[free], nc[free]] = 1.0

@@ -30,7 +30,7 @@ from .config import WorldConfig
 from .geometry import N_ACTIONS
 from .observation import N_CHANNELS
 from .render import render_frame
-from .scenario import Scenario, generate_scenario
+from .scenario import generate_scenario
 from .world import NO_ACTION, StepResult, World
 
 _SHAPE_FIELDS = ("height", "width", "n_agents", "view_size")
@@ -80,7 +80,10 @@ class FormicParallelEnv(ParallelEnv):
     def reset(self, seed: int | None = None, options: dict | None = None):
         scenario = (options or {}).get("scenario")
         if scenario is not None:
-            self._check_scenario(scenario)
+            for name in _SHAPE_FIELDS:
+                ours, theirs = getattr(self.config, name), getattr(scenario.config, name)
+                if ours != theirs:
+                    raise ValueError(f"scenario has {name}={theirs}, this env was built for {name}={ours}")
             self.scenario_seed = scenario.seed
         else:
             if seed is not None:
@@ -97,12 +100,6 @@ class FormicParallelEnv(ParallelEnv):
             result = self.world.reset(scenario)
         self.agents = self.possible_agents[:]
         return self._observations(result), self._infos(result)
-
-    def _check_scenario(self, scenario: Scenario) -> None:
-        for name in _SHAPE_FIELDS:
-            ours, theirs = getattr(self.config, name), getattr(scenario.config, name)
-            if ours != theirs:
-                raise ValueError(f"scenario has {name}={theirs}, this env was built for {name}={ours}")
 
     # ------------------------------------------------------------------- step
     def step(self, actions: dict[str, int]):

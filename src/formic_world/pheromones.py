@@ -32,14 +32,16 @@ def deposit_values(config: WorldConfig, rng: np.random.Generator, n_agents: int)
     return np.full(n_agents, config.deposit_strength)
 
 
-def greedy_path(passable: np.ndarray, start: tuple[int, int], goal: tuple[int, int]) -> list[tuple[int, int]] | None:
+def greedy_path(
+    passable: np.ndarray, start: tuple[int, int], goal: tuple[int, int]
+) -> list[tuple[int, int]] | None:
     """Walk from start to goal, each step to the unvisited passable neighbour best aligned
     with the straight line to the goal (ties: N, E, S, W). None if the walk gets stuck."""
     height, width = passable.shape
     path = [start]
     visited = {start}
-    current = start
     for _ in range(4 * (height + width)):
+        current = path[-1]
         if current == goal:
             return path
         to_goal = np.array([goal[0] - current[0], goal[1] - current[1]], dtype=float)
@@ -47,9 +49,7 @@ def greedy_path(passable: np.ndarray, start: tuple[int, int], goal: tuple[int, i
         best, best_score = None, -np.inf
         for delta in DIRECTION_DELTAS:
             nxt = (current[0] + int(delta[0]), current[1] + int(delta[1]))
-            if not (0 <= nxt[0] < height and 0 <= nxt[1] < width) or nxt in visited:
-                continue
-            if not passable[nxt]:
+            if not (0 <= nxt[0] < height and 0 <= nxt[1] < width) or nxt in visited or not passable[nxt]:
                 continue
             score = float(delta @ to_goal)
             if score > best_score:
@@ -58,7 +58,6 @@ def greedy_path(passable: np.ndarray, start: tuple[int, int], goal: tuple[int, i
             return None
         path.append(best)
         visited.add(best)
-        current = best
     return None
 
 

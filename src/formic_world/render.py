@@ -173,10 +173,7 @@ def render_frames_to_file(frames: Iterable[np.ndarray], path: str | os.PathLike,
 
 
 def _pad_even(frame: np.ndarray) -> np.ndarray:
-    pad_rows, pad_cols = frame.shape[0] % 2, frame.shape[1] % 2
-    if not (pad_rows or pad_cols):
-        return frame
-    return np.pad(frame, ((0, pad_rows), (0, pad_cols), (0, 0)), constant_values=255)
+    return np.pad(frame, ((0, frame.shape[0] % 2), (0, frame.shape[1] % 2), (0, 0)), constant_values=255)
 
 
 def render_scenario(

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import os
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -17,7 +18,7 @@ import numpy as np
 from scipy import ndimage
 
 from .config import WorldConfig, resource_count_range
-from .files import atomic_write_text
+from .files import atomic_open
 from .geometry import (
     CACHE,
     FREE,
@@ -127,7 +128,8 @@ class Scenario:
 
     def save(self, path: str | os.PathLike) -> None:
         """Write atomically: a crash leaves the old file or the new one, never half of one."""
-        atomic_write_text(path, self.to_json())
+        with atomic_open(path) as handle:
+            handle.write(self.to_json())
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "Scenario":
@@ -146,21 +148,24 @@ class Scenario:
         return generate_scenario(self.config, self.seed)
 
 
-def nest_reserved_strips(config: WorldConfig) -> list[np.ndarray]:
-    return [
-        strip_cells(cache, direction, config.queue_len)
-        for cache, direction in zip(nest_cache_cells(config.height, config.width), NEST_QUEUE_DIRECTIONS)
-    ]
+def _layout_cells(cells_of, config: WorldConfig, resources: Iterable[ResourceSpec]) -> np.ndarray:
+    """``cells_of(anchor, direction, queue_len)`` for the nest caches, then ``resources``, stacked."""
+    anchors = list(zip(nest_cache_cells(config.height, config.width), NEST_QUEUE_DIRECTIONS))
+    anchors += [((r.row, r.col), r.direction) for r in resources]
+    return np.concatenate([cells_of(anchor, d, config.queue_len) for anchor, d in anchors])
 
 
-def all_queue_cells(config: WorldConfig, resources: tuple[ResourceSpec, ...] | list[ResourceSpec]) -> np.ndarray:
-    """Every queue cell of the nest and of the given resources, shape (k, 2)."""
-    cells = [
-        queue_cells(cache, d, config.queue_len)
-        for cache, d in zip(nest_cache_cells(config.height, config.width), NEST_QUEUE_DIRECTIONS)
-    ]
-    cells += [queue_cells((r.row, r.col), r.direction, config.queue_len) for r in resources]
-    return np.concatenate(cells)
+def all_queue_cells(config: WorldConfig, resources: Iterable[ResourceSpec]) -> np.ndarray:
+    """Every queue cell of the nest and of the given resources, shape (k, 2), queue by queue."""
+    return _layout_cells(queue_cells, config, resources)
+
+
+def reserved_cells(config: WorldConfig, resources: Iterable[ResourceSpec]) -> np.ndarray:
+    """Mask of the reserved strips (SPEC §1) of the nest and of the given resources."""
+    cells = _layout_cells(strip_cells, config, resources)
+    reserved = np.zeros((config.height, config.width), dtype=bool)
+    reserved[cells[:, 0], cells[:, 1]] = True
+    return reserved
 
 
 def find_resource_strip(
@@ -207,9 +212,7 @@ def static_grid(config: WorldConfig, obstacles, resources) -> np.ndarray:
 def _draw_resources(config: WorldConfig, rng: np.random.Generator) -> list[ResourceSpec] | None:
     lo, hi = resource_count_range(config.height, config.width)
     count = int(rng.integers(lo, hi + 1))
-    forbidden = np.zeros((config.height, config.width), dtype=bool)
-    for strip in nest_reserved_strips(config):
-        forbidden[strip[:, 0], strip[:, 1]] = True
+    forbidden = reserved_cells(config, [])
     resources = []
     for _ in range(count):
         placed = find_resource_strip(rng, forbidden, config.queue_len)
@@ -218,9 +221,9 @@ def _draw_resources(config: WorldConfig, rng: np.random.Generator) -> list[Resou
         row, col, direction = placed
         strip = strip_cells((row, col), direction, config.queue_len)
         forbidden[strip[:, 0], strip[:, 1]] = True
-        capacity = (
-            int(rng.integers(config.capacity_min, config.capacity_max + 1)) if config.capacity == "finite" else 0
-        )
+        capacity = 0
+        if config.capacity == "finite":
+            capacity = int(rng.integers(config.capacity_min, config.capacity_max + 1))
         resources.append(ResourceSpec(row, col, direction, capacity))
     return resources
 
@@ -231,13 +234,7 @@ def _draw_obstacles(
     count = int(round(config.obstacle_density * config.height * config.width))
     if count == 0:
         return []
-    reserved = np.zeros((config.height, config.width), dtype=bool)
-    for strip in nest_reserved_strips(config):
-        reserved[strip[:, 0], strip[:, 1]] = True
-    for res in resources:
-        strip = strip_cells((res.row, res.col), res.direction, config.queue_len)
-        reserved[strip[:, 0], strip[:, 1]] = True
-    candidates = np.flatnonzero(~reserved)
+    candidates = np.flatnonzero(~reserved_cells(config, resources))
     if len(candidates) < count:
         return None
     chosen = np.sort(rng.choice(candidates, size=count, replace=False))
@@ -277,8 +274,7 @@ def _draw_agents(
             cell = queue_cells(caches[q], NEST_QUEUE_DIRECTIONS[q], config.queue_len)[fill[q]]
             queued.append(AgentStart(int(cell[0]), int(cell[1]), True, q))
             fill[q] += 1
-    grid = static_grid(config, obstacles, resources)
-    free = grid == FREE
+    free = static_grid(config, obstacles, resources) == FREE
     cells = all_queue_cells(config, resources)
     free[cells[:, 0], cells[:, 1]] = False  # never start anyone standing in a queue
     starts = nearest_nest_cells(free, n - len(queued))
@@ -306,7 +302,7 @@ def generate_scenario(config: WorldConfig, seed: int) -> Scenario:
         if obstacles is None:
             continue
         agents = _draw_agents(config, rng, obstacles, resources)
-        scenario = Scenario(
+        return Scenario(
             config=config,
             seed=seed,
             obstacles=tuple(obstacles),
@@ -314,7 +310,6 @@ def generate_scenario(config: WorldConfig, seed: int) -> Scenario:
             agents=tuple(agents),
             wipeout_starts=draw_wipeout_starts(config, seed),
         )
-        return scenario
     raise ScenarioError(
         f"could not lay out a {config.height}x{config.width} world with seed {seed} "
         f"after {_LAYOUT_TRIES} tries"
@@ -329,16 +324,15 @@ def validate_scenario(scenario: Scenario) -> None:
     def inside(r: int, c: int) -> bool:
         return 0 <= r < height and 0 <= c < width
 
-    caches = set(nest_cache_cells(height, width))
+    caches = nest_cache_cells(height, width)
+    occupied = np.zeros((height, width), dtype=bool)
+    for cache in caches:
+        occupied[cache] = True
     for r, c in scenario.obstacles:
         if not inside(r, c):
             raise ScenarioError(f"obstacle ({r}, {c}) is outside the {height}x{width} world")
         if (r, c) in caches:
             raise ScenarioError(f"obstacle ({r}, {c}) covers a nest cache")
-    occupied = np.zeros((height, width), dtype=bool)
-    for cache in nest_cache_cells(height, width):
-        occupied[cache] = True
-    for r, c in scenario.obstacles:
         occupied[r, c] = True
     for i, res in enumerate(scenario.resources):
         if res.direction not in (0, 1, 2, 3):

@@ -8,19 +8,16 @@ from .config import WorldConfig
 from .scenario import Scenario, ScenarioError, generate_scenario
 
 
-def set_name(config: WorldConfig) -> str:
-    return (
+def generate_set(config: WorldConfig, seed: int, count: int, directory: Path) -> list[Path]:
+    """Scenarios with seeds seed..seed+count-1; existing identical files are kept."""
+    name = (
         f"s{config.height}_n{config.n_agents}_o{config.obstacle_density:g}_{config.capacity}"
         f"_w{config.wipeouts}_t{config.episode_steps}"
     )
-
-
-def generate_set(config: WorldConfig, seed: int, count: int, directory: Path) -> list[Path]:
-    """Scenarios with seeds seed..seed+count-1; existing identical files are kept."""
     paths = []
     for k in range(count):
         scenario = generate_scenario(config, seed + k)
-        path = Path(directory) / f"{set_name(config)}_seed{seed + k}.json"
+        path = Path(directory) / f"{name}_seed{seed + k}.json"
         if not path.exists() or path.read_text() != scenario.to_json():
             scenario.save(path)
         paths.append(path)

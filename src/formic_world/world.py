@@ -27,27 +27,19 @@ import numpy as np
 
 from . import kernels
 from .config import WorldConfig
-from .geometry import (
-    CACHE,
-    DIRECTION_DELTAS,
-    FREE,
-    N_ACTIONS,
-    NEST_QUEUE_DIRECTIONS,
-    RESOURCE,
-    nest_cache_cells,
-    nest_centre,
-    queue_cells,
-    strip_cells,
-)
+from .geometry import DIRECTION_DELTAS, FREE, N_ACTIONS, RESOURCE, nest_centre, queue_cells
 from .observation import ObservationBuilder
 from .pheromones import deposit_values, highway_map
 from .scenario import (
+    ResourceSpec,
     Scenario,
     ScenarioError,
-    nest_reserved_strips,
+    all_queue_cells,
     find_resource_strip,
     generate_scenario,
     passable_component_reaches,
+    reserved_cells,
+    static_grid,
 )
 
 _RESPAWN_TRIES = 1000
@@ -83,29 +75,19 @@ class World:
         self.rng = np.random.default_rng([scenario.seed, 1])
         height, width, n, qlen = cfg.height, cfg.width, cfg.n_agents, cfg.queue_len
 
-        self.grid = np.full((height, width), FREE, dtype=np.int8)
-        for r, c in nest_cache_cells(height, width):
-            self.grid[r, c] = CACHE
-        for r, c in scenario.obstacles:
-            self.grid[r, c] = 1
-
-        n_res = len(scenario.resources)
-        self.resource_pos = np.array([[r.row, r.col] for r in scenario.resources], dtype=np.int64).reshape(n_res, 2)
+        self.grid = static_grid(cfg, scenario.obstacles, scenario.resources)
+        positions = [[r.row, r.col] for r in scenario.resources]
+        self.resource_pos = np.array(positions, dtype=np.int64).reshape(-1, 2)
         self.resource_dir = np.array([r.direction for r in scenario.resources], dtype=np.int64)
         full = self.load_full
         self.resource_capacity = np.array(
             [r.capacity * full if r.capacity > 0 else -1 for r in scenario.resources], dtype=np.int64
         )
         self.resource_remaining = self.resource_capacity.copy()
-        self.grid[self.resource_pos[:, 0], self.resource_pos[:, 1]] = RESOURCE
 
         # Queues 0-3 are the nest caches (NW, NE, SW, SE); queue 4+i belongs to resource i.
-        n_queues = 4 + n_res
-        self.queue_cells = np.zeros((n_queues, qlen, 2), dtype=np.int64)
-        for q, (cache, d) in enumerate(zip(nest_cache_cells(height, width), NEST_QUEUE_DIRECTIONS)):
-            self.queue_cells[q] = queue_cells(cache, d, qlen)
-        for i in range(n_res):
-            self.queue_cells[4 + i] = queue_cells(tuple(self.resource_pos[i]), self.resource_dir[i], qlen)
+        n_queues = 4 + len(scenario.resources)
+        self.queue_cells = all_queue_cells(cfg, scenario.resources).reshape(n_queues, qlen, 2)
         self.queue_is_cache = np.arange(n_queues) < 4
         self.queue_resource = np.arange(n_queues, dtype=np.int64) - 4
         self.queue_members = np.full((n_queues, qlen), -1, dtype=np.int64)
@@ -213,15 +195,15 @@ class World:
         res = int(self.queue_resource[q])
         old = self.resource_pos[res]
         self.grid[old[0], old[1]] = FREE
-        forbidden = self.grid != FREE
-        forbidden |= self.agent_at >= 0
-        for strip in nest_reserved_strips(cfg):
-            forbidden[strip[:, 0], strip[:, 1]] = True
-        for i in range(len(self.resource_pos)):
-            if i != res:
-                strip = strip_cells(tuple(self.resource_pos[i]), self.resource_dir[i], cfg.queue_len)
-                forbidden[strip[:, 0], strip[:, 1]] = True
+        kept = [
+            ResourceSpec(r, c, d, 0)
+            for i, ((r, c), d) in enumerate(zip(self.resource_pos, self.resource_dir))
+            if i != res
+        ]
+        forbidden = (self.grid != FREE) | (self.agent_at >= 0) | reserved_cells(cfg, kept)
         anchor = tuple(self.queue_cells[0, 0])
+        # the new cell must not cut any other queue off the nest either
+        other_queues = np.delete(self.queue_cells, q, axis=0).reshape(-1, 2)
         for _ in range(_RESPAWN_TRIES):
             placed = find_resource_strip(self.rng, forbidden, cfg.queue_len)
             if placed is None:
@@ -230,9 +212,7 @@ class World:
             cells = queue_cells((row, col), direction, cfg.queue_len)
             passable = self.grid == FREE
             passable[row, col] = False
-            # the new cell must not cut any other queue off the nest either
-            others = np.delete(self.queue_cells, q, axis=0).reshape(-1, 2)
-            if not passable_component_reaches(passable, anchor, np.concatenate([cells, others])):
+            if not passable_component_reaches(passable, anchor, np.concatenate([cells, other_queues])):
                 continue
             self.grid[row, col] = RESOURCE
             self.resource_pos[res] = row, col
