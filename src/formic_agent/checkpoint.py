@@ -26,17 +26,15 @@ class CheckpointError(ValueError):
     """A model file that cannot be used, with the reason."""
 
 
+def _payload(net: ForMICNet, **extra: Any) -> dict[str, Any]:
+    return {"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION, "network": net.config.to_dict(),
+            "state_dict": net.state_dict(), **extra}
+
+
 def save_checkpoint(path: str | os.PathLike, net: ForMICNet, **extra: Any) -> None:
     """Write to a temporary file and rename: a crash never leaves a half-written checkpoint."""
-    payload = {
-        "format": CHECKPOINT_FORMAT,
-        "version": CHECKPOINT_VERSION,
-        "network": net.config.to_dict(),
-        "state_dict": net.state_dict(),
-        **extra,
-    }
     with atomic_open(path, "wb") as handle:
-        torch.save(payload, handle)
+        torch.save(_payload(net, **extra), handle)
 
 
 def read_checkpoint(source: str | os.PathLike | bytes) -> dict[str, Any]:
@@ -76,6 +74,5 @@ def checkpoint_id(path: str | os.PathLike) -> str:
 def state_dict_bytes(net: ForMICNet) -> bytes:
     """Weights as bytes for the ROS weights topic (loaded with weights_only=True)."""
     buffer = io.BytesIO()
-    torch.save({"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION,
-                "network": net.config.to_dict(), "state_dict": net.state_dict()}, buffer)
+    torch.save(_payload(net), buffer)
     return buffer.getvalue()

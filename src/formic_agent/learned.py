@@ -20,9 +20,7 @@ class LearnedPolicy(Policy):
         self.net = net.eval()
         self.greedy = greedy
         self.checkpoint = checkpoint
-        self.seed = 0
-        self.hidden = torch.zeros(1, 0, net.config.rnn)
-        self.cell = torch.zeros(1, 0, net.config.rnn)
+        self.reset(0, 0)
 
     @classmethod
     def from_checkpoint(cls, path: str | Path, greedy: bool = False) -> "LearnedPolicy":

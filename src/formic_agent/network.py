@@ -17,7 +17,6 @@ from torch import nn
 from formic_world.geometry import N_ACTIONS, nest_centre
 
 
-
 @dataclass(frozen=True)
 class NetworkConfig:
     conv1: int = 128

@@ -83,8 +83,8 @@ class Policy(ABC):
         """Start of an episode: forget all memory; seed any randomness."""
 
     def wipe(self, steps: int | None = None) -> None:
-        """A pheromone wipeout of ``steps`` steps (default: the policy's own) starts (called before that step's :meth:`act`): policies that
-        keep marks of their own clear them here."""
+        """A pheromone wipeout of ``steps`` steps (default: the policy's own) starts, called before
+        that step's :meth:`act`: policies that keep marks of their own clear them here."""
 
     def forget(self, agent_ids: np.ndarray) -> None:
         """Forget the memory of these agents (one was swapped in mid-episode)."""

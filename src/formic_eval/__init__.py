@@ -6,13 +6,5 @@ from .matrix import PolicyOptions, Setting, generate_matrix, load_matrix, settin
 from .results import aggregate, food_stats
 from .runner import evaluate
 
-__all__ = [
-    "PolicyOptions",
-    "Setting",
-    "aggregate",
-    "evaluate",
-    "food_stats",
-    "generate_matrix",
-    "load_matrix",
-    "settings_grid",
-]
+__all__ = ["PolicyOptions", "Setting", "aggregate", "evaluate", "food_stats", "generate_matrix", "load_matrix",
+           "settings_grid"]

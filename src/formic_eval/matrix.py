@@ -35,10 +35,13 @@ def wipeout_length(steps: int) -> int:
 
 def env_of(config: WorldConfig) -> str:
     """The environment name of a stored scenario's configuration."""
-    for name, (capacity, wipeouts) in ENVIRONMENTS.items():
-        if config.capacity == capacity and config.wipeouts == wipeouts:
-            return name
-    return f"{config.capacity}-w{config.wipeouts}"
+    names = {kind: name for name, kind in ENVIRONMENTS.items()}
+    return names.get((config.capacity, config.wipeouts), f"{config.capacity}-w{config.wipeouts}")
+
+
+def env_rank(env: str) -> int:
+    """Where an environment comes in tables and sorted settings (unknown ones last)."""
+    return ENV_ORDER.index(env) if env in ENV_ORDER else len(ENV_ORDER)
 
 
 @dataclass(frozen=True)
@@ -60,8 +63,7 @@ class Setting:
         )
 
     def sort_key(self) -> tuple:
-        env_rank = ENV_ORDER.index(self.env) if self.env in ENV_ORDER else len(ENV_ORDER)
-        return (self.size, self.steps, self.obstacles, env_rank, self.env, self.agents)
+        return (self.size, self.steps, self.obstacles, env_rank(self.env), self.env, self.agents)
 
 
 @dataclass(frozen=True)

@@ -4,8 +4,8 @@ beside them.
 The values were read from the reference repository's plots of the 128x128 results (about
 +-10). They are totals over the paper's 1024-step test episodes ("Testing episodes last 1024
 time steps", paper §V): the authors' own planner, run in their own world, matches them at 1024
-steps and gets about half at 512. Those plots' obstacle labels are known to be swapped, so the "5%" row may really
-be the 10% case; we compare it with our 0.05 density and say so in the report.
+steps and gets about half at 512. Those plots' obstacle labels are known to be swapped, so the
+"5%" row may really be the 10% case; we compare it with our 0.05 density and say so in the report.
 """
 
 from __future__ import annotations
@@ -81,11 +81,6 @@ PAPER_ABLATION: dict[str, tuple[float, float, float, float]] = {
 }
 
 
-def _paper_variant(variant: str) -> str:
-    """Greedy or sampled, a learned run compares with the same published line."""
-    return "no-pheromones" if "no-pheromones" in variant.split("+") else ""
-
-
 # The reference variants of a baseline compare with the same published line as the baseline.
 PAPER_ALGORITHM = {"csaf-ref": "csaf", "csaf11-ref": "csaf11"}
 
@@ -93,14 +88,11 @@ PAPER_ALGORITHM = {"csaf-ref": "csaf", "csaf11-ref": "csaf11"}
 def paper_row(cell: dict) -> PaperRow | None:
     if cell["size"] != PAPER_SIZE or cell["steps"] != PAPER_STEPS or cell["agents"] not in PAPER_TEAMS:
         return None
-    variant = _paper_variant(cell.get("variant", ""))
-    algorithm = PAPER_ALGORITHM.get(cell["algorithm"], cell["algorithm"])
-    for row in PAPER_ROWS:
-        if (row.env, row.algorithm, row.variant) == (cell["env"], algorithm, variant) and abs(
-            row.obstacles - cell["obstacles"]
-        ) < 1e-9:
-            return row
-    return None
+    # Greedy or sampled, a learned run compares with the same published line.
+    variant = "no-pheromones" if "no-pheromones" in cell.get("variant", "").split("+") else ""
+    line = (cell["env"], PAPER_ALGORITHM.get(cell["algorithm"], cell["algorithm"]), variant)
+    return next((row for row in PAPER_ROWS if (row.env, row.algorithm, row.variant) == line
+                 and abs(row.obstacles - cell["obstacles"]) < 1e-9), None)
 
 
 def paper_food(cell: dict) -> float | None:
@@ -113,7 +105,8 @@ def _fmt(value: float | None, digits: int = 0) -> str:
     return "–" if value is None else f"{value:.{digits}f}"
 
 
-def _name(cell: dict) -> str:
+def algorithm_label(cell: dict) -> str:
+    """The cell's algorithm as the report and the figures name it."""
     title = ALGORITHM_TITLES.get(cell["algorithm"], cell["algorithm"])
     return f"{title} ({cell['variant']})" if cell["variant"] else title
 
@@ -152,9 +145,10 @@ def markdown_report(cells: list[dict], run: dict) -> str:
             row = paper_row(c)
             mark = "~" if row is not None and row.approximate else ""
             lines.append(
-                f"| {_setting(c)} | {_name(c)} | {c['agents']} | {c['food_mean']:.1f} ± {c['food_std']:.1f} "
-                f"| {mark}{c['paper_food']:.0f} | {c['food_mean'] / c['paper_food']:.2f} "
-                f"| {_fmt(c['food_ratio_to_planner'], 2)} | {_fmt(c['paper_ratio_to_planner'], 2)} |"
+                f"| {_setting(c)} | {algorithm_label(c)} | {c['agents']} "
+                f"| {c['food_mean']:.1f} ± {c['food_std']:.1f} | {mark}{c['paper_food']:.0f} "
+                f"| {c['food_mean'] / c['paper_food']:.2f} | {_fmt(c['food_ratio_to_planner'], 2)} "
+                f"| {_fmt(c['paper_ratio_to_planner'], 2)} |"
             )
     else:
         lines.append(
@@ -169,9 +163,10 @@ def markdown_report(cells: list[dict], run: dict) -> str:
     ]
     for c in cells:
         lines.append(
-            f"| {c['size']} | {c['steps']} | {_setting(c)} | {_name(c)} | {c['agents']} | {c['n']} "
-            f"| {c['food_mean']:.1f} ± {c['food_std']:.1f} | {_fmt(c['food_ratio_to_planner'], 2)} "
-            f"| {c['step_ms_mean']:.3f} | {c['agent_step_ms_mean']:.4f} |"
+            f"| {c['size']} | {c['steps']} | {_setting(c)} | {algorithm_label(c)} | {c['agents']} "
+            f"| {c['n']} | {c['food_mean']:.1f} ± {c['food_std']:.1f} "
+            f"| {_fmt(c['food_ratio_to_planner'], 2)} | {c['step_ms_mean']:.3f} "
+            f"| {c['agent_step_ms_mean']:.4f} |"
         )
     lines += [
         "",

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .paper import ALGORITHM_TITLES
+from .paper import algorithm_label as _label
 
 COLOURS = {"formic": "C3", "planner": "C0", "csaf": "C1", "csaf11": "C2", "cardinality": "C4", "random": "C7",
            "csaf-ref": "C5", "csaf11-ref": "C6"}
@@ -20,11 +20,6 @@ def _pyplot():
     import matplotlib.pyplot as plt
 
     return plt
-
-
-def _label(cell: dict) -> str:
-    title = ALGORITHM_TITLES.get(cell["algorithm"], cell["algorithm"])
-    return f"{title} ({cell['variant']})" if cell["variant"] else title
 
 
 def _line(cell: dict) -> tuple[str, str]:
@@ -58,10 +53,9 @@ def plot_all(cells: list[dict], out: Path) -> list[str]:
     paths = []
     for size, steps in sorted({(c["size"], c["steps"]) for c in cells}):
         group = [c for c in cells if (c["size"], c["steps"]) == (size, steps)]
-        tag = f"s{size}_t{steps}"
-        paths.append(plot_food_vs_team(group, Path(out) / f"food_vs_team_{tag}.png"))
-        paths.append(plot_time_per_step(group, Path(out) / f"time_per_step_{tag}.png"))
-        paths.append(plot_food_vs_time(group, Path(out) / f"food_vs_time_{tag}.png"))
+        for name, plot in (("food_vs_team", plot_food_vs_team), ("time_per_step", plot_time_per_step),
+                           ("food_vs_time", plot_food_vs_time)):
+            paths.append(plot(group, Path(out) / f"{name}_s{size}_t{steps}.png"))
     return [str(p) for p in paths]
 
 

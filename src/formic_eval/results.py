@@ -48,13 +48,12 @@ def aggregate(records: Iterable[dict]) -> list[dict]:
     groups: dict[tuple, list[dict]] = {}
     for record in records:
         groups.setdefault(tuple(record[f] for f in CELL_FIELDS), []).append(record)
+    cells = []
     for key, group in groups.items():
         models = sorted({r.get("model", "") for r in group})
         if len(models) > 1:
             raise ValueError(f"{key[0]} ({key[1] or 'default'}) was run with {len(models)} different models "
                              f"({', '.join(m[:12] for m in models)}): evaluate each model into its own folder")
-    cells = []
-    for key, group in groups.items():
         group.sort(key=lambda r: (r["seed"], r["scenario"]))
         cell = dict(zip(CELL_FIELDS, key))
         curves = np.array([r["food_curve"] for r in group], dtype=np.float64)
@@ -70,8 +69,11 @@ def aggregate(records: Iterable[dict]) -> list[dict]:
             "food_curve_std": curve_std.round(4).tolist(),
         }
         cells.append(cell)
-    _add_planner_ratios(cells)
+    setting = lambda c: tuple(c[f] for f in CELL_FIELDS[2:])  # noqa: E731
+    planner = {setting(c): c["food_mean"] for c in cells if c["algorithm"] == "planner"}
     for cell in cells:
+        reference = planner.get(setting(cell))
+        cell["food_ratio_to_planner"] = cell["food_mean"] / reference if reference else None
         cell["paper_food"] = paper_food(cell)
         planner_paper = paper_food(cell | {"algorithm": "planner", "variant": ""})
         cell["paper_ratio_to_planner"] = (
@@ -80,19 +82,11 @@ def aggregate(records: Iterable[dict]) -> list[dict]:
     return sorted(cells, key=cell_order)
 
 
-def _add_planner_ratios(cells: list[dict]) -> None:
-    setting = lambda c: tuple(c[f] for f in CELL_FIELDS[2:])  # noqa: E731
-    planner = {setting(c): c["food_mean"] for c in cells if c["algorithm"] == "planner"}
-    for cell in cells:
-        reference = planner.get(setting(cell))
-        cell["food_ratio_to_planner"] = cell["food_mean"] / reference if reference else None
-
-
 def cell_order(cell: dict) -> tuple:
-    from .matrix import ENV_ORDER
+    from .matrix import env_rank
 
-    env = ENV_ORDER.index(cell["env"]) if cell["env"] in ENV_ORDER else len(ENV_ORDER)
-    return (cell["size"], cell["steps"], cell["obstacles"], env, cell["agents"], cell["algorithm"], cell["variant"])
+    return (cell["size"], cell["steps"], cell["obstacles"], env_rank(cell["env"]), cell["agents"],
+            cell["algorithm"], cell["variant"])
 
 
 def episode_rows(records: Iterable[dict]) -> list[dict]:

@@ -8,6 +8,7 @@ torn last line (killed mid-write) is cut off on the next start and that episode 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import os
 import signal
@@ -76,7 +77,13 @@ class EpisodeLog:
             self._handle = None
 
 
-_LEARNED_CACHE: dict[tuple, object] = {}
+@functools.cache
+def _learned_policy(model: str | None, model_digest: str, greedy: bool):
+    """The learned policy of a worker, loaded once per model: loading a checkpoint is the costly
+    part, and reset() clears the LSTM state per episode."""
+    from formic_runtime.registry import make_policy
+
+    return make_policy("formic", model=model, greedy=greedy)
 
 
 def run_task(task: Task) -> dict:
@@ -95,11 +102,7 @@ def run_task(task: Task) -> dict:
         # The stored layout, in the world this algorithm runs in (one-slot queues for csaf-ref).
         scenario = apply_world_overrides(scenario, [task.algorithm])
         if task.algorithm == "formic":
-            # Loading a checkpoint is the costly part; reset() clears the LSTM state per episode.
-            cache_key = (task.model, task.model_digest, task.greedy)
-            if cache_key not in _LEARNED_CACHE:
-                _LEARNED_CACHE[cache_key] = make_policy("formic", model=task.model, greedy=task.greedy)
-            policy = _LEARNED_CACHE[cache_key]
+            policy = _learned_policy(task.model, task.model_digest, task.greedy)
         else:
             policy = make_policy(task.algorithm)
         start = time.perf_counter()
@@ -118,11 +121,7 @@ def run_task(task: Task) -> dict:
         "algorithm": task.algorithm,
         "variant": task.variant,
         "model": task.model_digest,
-        "size": setting.size,
-        "agents": setting.agents,
-        "obstacles": setting.obstacles,
-        "env": setting.env,
-        "steps": setting.steps,
+        **dataclasses.asdict(setting),  # size, agents, obstacles, env, steps
         "seed": stored.seed,
         "scenario": stored.path.name,
         "scenario_digest": stored.digest,
@@ -221,9 +220,9 @@ def evaluate(
 ) -> dict:
     """Run (or resume) every episode of the matrix, then write the results, figures and report.
 
-    Returns the summary that ``formic eval --json`` prints (cells without their curves).
+    Returns the summary that ``formic eval --json`` prints (:func:`write_report`).
     """
-    from .results import aggregate, public_cell
+    from .results import aggregate
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -247,30 +246,32 @@ def evaluate(
         "wall_s": round(stats.wall_s, 3),
         "log": {"path": str(log.path), "torn_line_removed": log.repaired, "unreadable_lines": log.skipped_lines},
     }
-    files = {"episodes_jsonl": str(log.path), "scenarios": source} | write_report(out, records, cells, run)
-    return {"out": str(out)} | run | {"cells": [public_cell(c) for c in cells], "files": files}
+    return write_report(out, records, cells, run, {"episodes_jsonl": str(log.path), "scenarios": source})
 
 
-def write_report(out: Path, records: list[dict], cells: list[dict], run: dict) -> dict:
-    """Results (CSV/JSON), figures and results.md for these cells."""
+def write_report(out: Path, records: list[dict], cells: list[dict], run: dict,
+                 files: dict | None = None) -> dict:
+    """Results (CSV/JSON), figures and results.md for these cells (none without cells). Returns
+    the summary ``formic eval --json`` prints: the run, its cells without their curves, and
+    ``files`` with the files written here."""
     from .paper import markdown_report
     from .plots import plot_all
-    from .results import write_results
+    from .results import public_cell, write_results
 
-    if not cells:
-        return {}
-    files = write_results(out, records, cells, run)
-    files["figures"] = plot_all(cells, out)
-    report = out / "results.md"
-    report.write_text(markdown_report(cells, run))
-    files["report"] = str(report)
-    return files
+    files = dict(files or {})
+    if cells:
+        files |= write_results(out, records, cells, run)
+        files["figures"] = plot_all(cells, out)
+        report = out / "results.md"
+        report.write_text(markdown_report(cells, run))
+        files["report"] = str(report)
+    return {"out": str(out)} | run | {"cells": [public_cell(c) for c in cells], "files": files}
 
 
 def report_everything(out: Path, workers: str = "1 or 2") -> dict:
     """Rebuild the results from every episode logged in OUT (several calls with different
     algorithms or settings into one directory end up in one report); runs nothing."""
-    from .results import aggregate, public_cell
+    from .results import aggregate
 
     out = Path(out)
     log = EpisodeLog(out / "episodes.jsonl")
@@ -279,5 +280,4 @@ def report_everything(out: Path, workers: str = "1 or 2") -> dict:
     run = {"algorithms": sorted({r["algorithm"] for r in records}), "scenarios": str(out / "scenarios"),
            "episodes": {"total": len(records), "done": len(records), "computed": 0, "reused": len(records)},
            "workers": workers, "report_only": True}
-    files = write_report(out, records, cells, run)
-    return {"out": str(out)} | run | {"cells": [public_cell(c) for c in cells], "files": files}
+    return write_report(out, records, cells, run)

@@ -3,6 +3,7 @@ split across agent hosts, and acting for it on a batch of agents."""
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -39,15 +40,10 @@ def parse_ids(text: str, n_agents: int | None = None) -> list[int]:
 
 def format_ids(ids) -> str:
     """The inverse of :func:`parse_ids`: ``0-3+8``."""
-    ids = sorted(ids)
-    out, start = [], None
-    for i, a in enumerate(ids):
-        if start is None:
-            start = a
-        if i + 1 == len(ids) or ids[i + 1] != a + 1:
-            out.append(f"{start}-{a}" if a != start else f"{a}")
-            start = None
-    return "+".join(out)
+    # consecutive ids keep (id - position) constant: one run each
+    by_run = itertools.groupby(enumerate(sorted(ids)), lambda pair: pair[1] - pair[0])
+    runs = [[a for _, a in run] for _, run in by_run]
+    return "+".join(f"{run[0]}-{run[-1]}" if len(run) > 1 else f"{run[0]}" for run in runs)
 
 
 def _parts(spec: str) -> list[tuple[str, str]]:

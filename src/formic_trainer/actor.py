@@ -56,15 +56,10 @@ def select_actions(cfg: TrainConfig, logits: torch.Tensor, train_mask: np.ndarra
     In "mask" mode ``sample_mask`` (default: ``sampling_mask``) says what may be sampled."""
     if cfg.action_filter == "mask":
         allowed = sampling_mask(cfg, train_mask) if sample_mask is None else sample_mask
-        masked = logits.masked_fill(~torch.from_numpy(allowed), -1e9)
-        probs = torch.softmax(masked, -1)
-        actions = torch.multinomial(probs, 1, generator=generator)[:, 0]
-        logp = torch.log_softmax(masked, -1).gather(-1, actions[:, None])[:, 0]
-        return actions.numpy(), logp.numpy(), np.ones(len(actions), dtype=np.float32)
-    probs = torch.softmax(logits, -1)
-    actions = torch.multinomial(probs, 1, generator=generator)[:, 0].numpy().copy()
+        logits = logits.masked_fill(~torch.from_numpy(allowed), -1e9)
+    actions = torch.multinomial(torch.softmax(logits, -1), 1, generator=generator)[:, 0].numpy().copy()
     value_mask = np.ones(len(actions), dtype=np.float32)
-    if cfg.action_filter == "replace":
+    if cfg.action_filter == "replace":  # invalid samples are replaced by a random valid action
         rows = np.arange(len(actions))
         invalid = ~train_mask[rows, actions] & train_mask.any(1)
         for i in np.flatnonzero(invalid):

@@ -31,16 +31,19 @@ def sampling_mask(cfg: TrainConfig, train_mask):
     return allowed
 
 
-def policy_losses(
-    net: ForMICNet, cfg: TrainConfig, batch: dict[str, torch.Tensor]
-) -> dict[str, torch.Tensor]:
+def masked_mean(x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """The mean of ``x`` over the entries ``mask`` weights (0 when it weights none)."""
+    return (x * mask).sum() / mask.sum().clamp(min=1.0)
+
+
+def policy_losses(net: ForMICNet, cfg: TrainConfig,
+                  batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
     """All loss terms over a batch of agent sequences (T, B, ...) from their initial state."""
     logits, values, _ = net(batch["obs"], (batch["h0"], batch["c0"]), batch["extra"])
+    logits_for_pi = logits
     if cfg.action_filter == "mask":
         allowed = batch["sample_mask"] if "sample_mask" in batch else sampling_mask(cfg, batch["train_mask"])
         logits_for_pi = logits.masked_fill(~allowed, -1e9)
-    else:
-        logits_for_pi = logits
     log_probs = torch.log_softmax(logits_for_pi, dim=-1)
     logp = log_probs.gather(-1, batch["actions"].unsqueeze(-1)).squeeze(-1)
     entropy = -(log_probs.exp() * log_probs).sum(-1)
@@ -57,14 +60,11 @@ def policy_losses(
         move_logp = torch.log_softmax(logits[..., :4], dim=-1).masked_fill(~batch["train_mask"][..., :4], -1e9)
         valid_term = -torch.logsumexp(move_logp, dim=-1).clamp(max=1e8)
     else:
-        valid_term = F.binary_cross_entropy_with_logits(
-            logits, batch["train_mask"].float(), reduction="none"
-        )
+        valid_term = F.binary_cross_entropy_with_logits(logits, batch["train_mask"].float(), reduction="none")
         valid_term = valid_term[..., :4].sum(-1) if cfg.valid_actions == "moves" else valid_term.sum(-1)
 
     def reduce(x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-        total = (x * mask).sum()
-        return total if cfg.loss_reduction == "sum" else total / mask.sum().clamp(min=1.0)
+        return (x * mask).sum() if cfg.loss_reduction == "sum" else masked_mean(x, mask)
 
     terms = {
         "policy": reduce(pg, loss_mask),
@@ -72,24 +72,21 @@ def policy_losses(
         "entropy": reduce(entropy, loss_mask),
         "valid": reduce(valid_term * batch["any_valid"], loss_mask),
     }
-    terms["loss"] = (
-        terms["policy"] - cfg.entropy_coef * terms["entropy"]
-        + cfg.value_coef * terms["value"] + cfg.valid_coef * terms["valid"]
-    )
+    terms["loss"] = (terms["policy"] - cfg.entropy_coef * terms["entropy"]
+                     + cfg.value_coef * terms["value"] + cfg.valid_coef * terms["valid"])
     if "expert_actions" in batch:  # the agents' own unmasked policy, as it acts at test time
-        own = torch.log_softmax(logits, dim=-1)
-        imitation_mask = batch["imitation_mask"]
-        terms["imitation"] = reduce(-own.gather(-1, batch["expert_actions"].unsqueeze(-1)).squeeze(-1), imitation_mask)
+        own = torch.log_softmax(logits, dim=-1).gather(-1, batch["expert_actions"].unsqueeze(-1)).squeeze(-1)
+        terms["imitation"] = reduce(-own, batch["imitation_mask"])
         terms["loss"] = terms["loss"] + cfg.imitation_coef * terms["imitation"]
         with torch.no_grad():
             agree = (logits.argmax(-1) == batch["expert_actions"]).float()
-            terms["expert_agreement"] = (agree * imitation_mask).sum() / imitation_mask.sum().clamp(min=1.0)
+            terms["expert_agreement"] = masked_mean(agree, batch["imitation_mask"])
     with torch.no_grad():
         predicted = torch.sigmoid(logits) > 0.5
         agree = (predicted == batch["train_mask"])[..., :4].all(-1).float()
-        terms["valid_accuracy"] = (agree * loss_mask).sum() / loss_mask.sum().clamp(min=1.0)
+        terms["valid_accuracy"] = masked_mean(agree, loss_mask)
         if cfg.clip > 0:
-            terms["clip_fraction"] = (((ratio - 1).abs() > cfg.clip).float() * loss_mask).sum() / loss_mask.sum().clamp(min=1.0)
+            terms["clip_fraction"] = masked_mean(((ratio - 1).abs() > cfg.clip).float(), loss_mask)
     return terms
 
 
@@ -132,9 +129,8 @@ def update(net: ForMICNet, optimizer: torch.optim.Optimizer, cfg: TrainConfig, d
     adv_t = torch.from_numpy(adv.astype(np.float32))
     if cfg.normalize_advantages:
         m = tensors["loss_mask"]
-        mean = (adv_t * m).sum() / m.sum().clamp(min=1)
-        std = torch.sqrt((((adv_t - mean) ** 2) * m).sum() / m.sum().clamp(min=1)) + 1e-8
-        adv_t = (adv_t - mean) / std
+        mean = masked_mean(adv_t, m)
+        adv_t = (adv_t - mean) / (torch.sqrt(masked_mean((adv_t - mean) ** 2, m)) + 1e-8)
     tensors["advantages"] = adv_t
     n_seq = tensors["obs"].shape[1]
     stats: dict[str, list[float]] = {}
@@ -149,8 +145,8 @@ def update(net: ForMICNet, optimizer: torch.optim.Optimizer, cfg: TrainConfig, d
             grad_norm = torch.nn.utils.clip_grad_norm_(net.parameters(), cfg.max_grad_norm)
             optimizer.step()
             terms["grad_norm"] = grad_norm
-            for k, v in terms.items():
-                stats.setdefault(k, []).append(float(v.detach()) if torch.is_tensor(v) else float(v))
+            for k, v in terms.items():  # every term is a tensor
+                stats.setdefault(k, []).append(float(v.detach()))
     return {k: float(np.mean(v)) for k, v in stats.items()}
 
 

@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import dataclasses
 import tempfile
 import time
 
 import torch
 
-from formic_agent.network import N_EXTRA_INPUTS, NETWORK_PRESETS, ForMICNet
+from formic_agent.network import N_EXTRA_INPUTS, NETWORK_PRESETS, ForMICNet, count_parameters
 
 from .config import make_config
 from .train import Trainer
@@ -39,12 +38,12 @@ def bench_policy(network: str, batch: int, threads: int, episodes: int = 1) -> d
         steps = trainer.env_steps
     return {
         "network": network,
-        "parameters": sum(p.numel() for p in net.parameters()),
+        "parameters": count_parameters(net),
         "threads": threads,
         "inference_batch": batch,
         "inference_agent_steps_per_s": inference,
         "training_agent_steps_per_s": steps / seconds,
         "training_seconds": seconds,
         "training_agent_steps": steps,
-        "network_config": dataclasses.asdict(NETWORK_PRESETS[network]),
+        "network_config": net.config.to_dict(),
     }

@@ -117,7 +117,6 @@ class TrainConfig:
         return dataclasses.asdict(self)
 
 
-
 @functools.cache
 def _choices() -> dict[str, tuple[str, ...]]:
     """The allowed values of every Literal-typed field."""
@@ -130,31 +129,15 @@ assert set(_choices()["rewards"]) == set(REWARD_PRESETS), "rewards must name for
 
 PRESETS = {
     "paper": TrainConfig(),
+    # PPO with GAE on a small network, every agent learning, masked sampling with annealing
     "cpu": TrainConfig(
-        preset="cpu",
-        network="cpu",
-        learning_agents=-1,
-        rollout_steps=128,
-        epochs=3,
-        minibatches=4,
-        clip=0.2,
-        gae_lambda=0.95,
-        optimizer="adam",
-        lr=3e-4,
-        max_grad_norm=0.5,
-        loss_reduction="mean",
-        normalize_advantages=True,
+        preset="cpu", network="cpu", learning_agents=-1,
+        rollout_steps=128, epochs=3, minibatches=4, clip=0.2, gae_lambda=0.95,
+        optimizer="adam", lr=3e-4, max_grad_norm=0.5, loss_reduction="mean", normalize_advantages=True,
         reward_scale=0.1,
-        action_filter="mask",
-        valid_actions="moves",
-        valid_loss="mass",
-        mask_join=False,
-        filter_anneal_start=40,
-        filter_anneal_end=300,
-        filter_final=0.0,
-        curriculum_start=60,
-        curriculum_end=300,
-        total_episodes=4000,
+        action_filter="mask", valid_actions="moves", valid_loss="mass", mask_join=False,
+        filter_anneal_start=40, filter_anneal_end=300, filter_final=0.0,
+        curriculum_start=60, curriculum_end=300, total_episodes=4000,
     ),
 }
 

@@ -19,6 +19,7 @@ from .config import TrainConfig, plain
 
 # settings a run may change when it resumes
 RESUMABLE = frozenset({"total_episodes", "threads", "checkpoint_every", "init_weights"})
+PROGRESS = ("episode", "updates", "env_steps", "seconds")  # the counters a checkpoint carries
 
 
 def learner_stream(cfg: TrainConfig, updates: int) -> np.random.Generator:
@@ -49,11 +50,12 @@ class Learner:
             self.net.load_state_dict(net.state_dict())
             self.log(f"network initialised from {cfg.init_weights}")
         self.rng = learner_stream(cfg, self.updates)
-        (self.run_dir / "config.json").write_text(json.dumps(cfg.to_dict(), indent=2))
+        config_text = json.dumps(cfg.to_dict(), indent=2)
+        (self.run_dir / "config.json").write_text(config_text)
         from torch.utils.tensorboard import SummaryWriter
 
         self.writer = SummaryWriter(str(self.run_dir / "tb"))
-        self.writer.add_text("config", json.dumps(cfg.to_dict(), indent=2))
+        self.writer.add_text("config", config_text)
 
     @property
     def version(self) -> int:
@@ -72,9 +74,8 @@ class Learner:
             )
         self.net.load_state_dict(payload["state_dict"])
         self.optimizer.load_state_dict(payload["optimizer"])
-        progress = payload["progress"]
-        self.episode, self.updates = progress["episode"], progress["updates"]
-        self.env_steps, self.seconds = progress["env_steps"], progress["seconds"]
+        for key in PROGRESS:
+            setattr(self, key, payload["progress"][key])
         self.log(f"resumed from {path}: episode {self.episode}, update {self.updates}")
 
     def learn(self, rollout: dict[str, np.ndarray], env_steps: int | None = None) -> dict[str, float]:
@@ -108,8 +109,7 @@ class Learner:
             self.run_dir / name, self.net,
             optimizer=self.optimizer.state_dict(),
             train_config=self.cfg.to_dict(),
-            progress={"episode": self.episode, "updates": self.updates, "env_steps": self.env_steps,
-                      "seconds": self.seconds},
+            progress={key: getattr(self, key) for key in PROGRESS},
         )
 
     def close(self) -> None:

@@ -59,11 +59,9 @@ class Trainer:
                     stats.setdefault(key, []).append(value)
         result = {key: float(np.mean(values)) for key, values in stats.items()}
         result["food_mean"] = float(food.mean())
-        result.update({f"food_env{i}": float(f) for i, f in enumerate(food)})
-        result["valid_rate"] = float(np.mean(actor.valid_rate))
-        result["highway_intensity"] = envs.highway
-        result["deposit_strength"] = envs.deposit
-        result["filter_probability"] = filter_probability(cfg, episode)
+        result |= {f"food_env{i}": float(f) for i, f in enumerate(food)}
+        result |= {"valid_rate": float(np.mean(actor.valid_rate)), "highway_intensity": envs.highway,
+                   "deposit_strength": envs.deposit, "filter_probability": filter_probability(cfg, episode)}
         learner.end_episodes(len(envs.worlds), result, seconds=time.time() - started)
         return result
 

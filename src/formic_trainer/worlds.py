@@ -93,18 +93,13 @@ class MetaAgents:
 
     def observe(self) -> Frame:
         """What every agent of every world sees now."""
-        obs, extra, valid, train, queued = [], [], [], [], []
-        self._seen = []
-        for w in self.worlds:
-            obs.append(w.observer.observe())
-            v = w.action_mask()
-            valid.append(v)
-            self._seen.append((obs[-1], v))
-            train.append(w.training_action_mask(v))
-            queued.append(w.queued)
-            extra.append(nest_features(w.pos, w.loads, w.grid.shape))
-        return Frame(np.concatenate(obs), np.concatenate(extra), np.concatenate(valid),
-                     np.concatenate(train), np.concatenate(queued))
+        self._seen = [(w.observer.observe(), w.action_mask()) for w in self.worlds]
+        obs, valid = zip(*self._seen)
+        return Frame(np.concatenate(obs),
+                     np.concatenate([nest_features(w.pos, w.loads, w.grid.shape) for w in self.worlds]),
+                     np.concatenate(valid),
+                     np.concatenate([w.training_action_mask(v) for w, v in zip(self.worlds, valid)]),
+                     np.concatenate([w.queued for w in self.worlds]))
 
     def demonstrations(self) -> tuple[np.ndarray, np.ndarray]:
         """(expert action, whether it is an imitation target) for every agent of every world,

@@ -35,22 +35,9 @@ from typing import TYPE_CHECKING
 import foxglove
 import numpy as np
 from foxglove.channels import GridChannel, SceneUpdateChannel
-from foxglove.messages import (
-    Color,
-    CubePrimitive,
-    Grid,
-    KeyValuePair,
-    PackedElementField,
-    PackedElementFieldNumericType,
-    Pose,
-    Quaternion,
-    SceneEntity,
-    SceneUpdate,
-    SpherePrimitive,
-    Timestamp,
-    Vector2,
-    Vector3,
-)
+from foxglove.messages import (Color, CubePrimitive, Grid, KeyValuePair, PackedElementField,
+                                PackedElementFieldNumericType, Pose, Quaternion, SceneEntity, SceneUpdate,
+                                SpherePrimitive, Timestamp, Vector2, Vector3)
 
 from . import DEFAULT_HOST, DEFAULT_MAX_HZ, DEFAULT_PORT, address
 
@@ -75,23 +62,27 @@ EMPTY = (0.2, 0.4, 1.0)  # the recorded markers' colours: blue empty, orange ful
 LOADED = (1.0, 0.55, 0.0)
 AGENT_SIZE = 0.8
 
-SCORE_SCHEMA = foxglove.Schema(name="formic.Score", encoding="jsonschema", data=json.dumps({
-    "type": "object",
-    "properties": {"data": {"type": "number", "description": "food delivered to the nest, as std_msgs/Float64"}},
-}).encode())
-STATE_SCHEMA = foxglove.Schema(name="formic.State", encoding="jsonschema", data=json.dumps({
-    "type": "object",
-    "properties": {
-        "step": {"type": "integer", "description": "world step, as WorldState.step"},
-        "score": {"type": "number", "description": "food delivered to the nest, as WorldState.score"},
-        "sim_time": {"type": "number", "description": "simulated seconds (step x dt)"},
-        "food_carried": {"type": "number", "description": "food the agents carry"},
-        "food_left": {"type": ["number", "null"], "description": "food left in finite resources (null: infinite)"},
-        "carrying": {"type": "integer", "description": "agents carrying food"},
-        "queued": {"type": "integer", "description": "agents waiting in a queue"},
-        "agents": {"type": "integer", "description": "team size"},
-    },
-}).encode())
+
+def _json_schema(name: str, **properties: tuple[str | list[str], str]) -> foxglove.Schema:
+    """The JSON schema of an object with these properties: (type, description) each."""
+    fields = {key: {"type": kind, "description": text} for key, (kind, text) in properties.items()}
+    return foxglove.Schema(name=name, encoding="jsonschema",
+                           data=json.dumps({"type": "object", "properties": fields}).encode())
+
+
+SCORE_SCHEMA = _json_schema("formic.Score",
+                            data=("number", "food delivered to the nest, as std_msgs/Float64"))
+STATE_SCHEMA = _json_schema(
+    "formic.State",
+    step=("integer", "world step, as WorldState.step"),
+    score=("number", "food delivered to the nest, as WorldState.score"),
+    sim_time=("number", "simulated seconds (step x dt)"),
+    food_carried=("number", "food the agents carry"),
+    food_left=(["number", "null"], "food left in finite resources (null: infinite)"),
+    carrying=("integer", "agents carrying food"),
+    queued=("integer", "agents waiting in a queue"),
+    agents=("integer", "team size"),
+)
 
 
 class _Listener(foxglove.websocket.ServerListener):
@@ -155,16 +146,13 @@ class LiveView:
         nanos = int(round(world.t * self.dt * 1e9))
         stamp = Timestamp(nanos // 1_000_000_000, nanos % 1_000_000_000)
         sent = False
-        for channel, build in ((self.world_channel, world_grid), (self.agents_channel, agent_scene)):
-            if channel.has_sinks():
-                channel.log(build(world, stamp), log_time=nanos)
+        for channel, build in ((self.world_channel, lambda: world_grid(world, stamp)),
+                               (self.agents_channel, lambda: agent_scene(world, stamp)),
+                               (self.score_channel, lambda: {"data": world.score}),
+                               (self.state_channel, lambda: state_message(world, self.dt))):
+            if channel.has_sinks():  # nothing is built for a channel nobody subscribes to
+                channel.log(build(), log_time=nanos)
                 sent = True
-        if self.score_channel.has_sinks():
-            self.score_channel.log({"data": world.score}, log_time=nanos)
-            sent = True
-        if self.state_channel.has_sinks():
-            self.state_channel.log(state_message(world, self.dt), log_time=nanos)
-            sent = True
         self.published += sent
         return sent
 
@@ -209,8 +197,8 @@ def world_grid(world: World, stamp: Timestamp) -> Grid:
 
 
 def _colour(load: float) -> Color:
-    return Color(r=EMPTY[0] + (LOADED[0] - EMPTY[0]) * load, g=EMPTY[1] + (LOADED[1] - EMPTY[1]) * load,
-                 b=EMPTY[2] + (LOADED[2] - EMPTY[2]) * load, a=1.0)
+    r, g, b = (empty + (loaded - empty) * load for empty, loaded in zip(EMPTY, LOADED))
+    return Color(r=r, g=g, b=b, a=1.0)
 
 
 _SIZE = Vector3(x=AGENT_SIZE, y=AGENT_SIZE, z=AGENT_SIZE)
