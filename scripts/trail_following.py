@@ -1,0 +1,116 @@
+"""Do agents follow the pheromone trails? Moves along the local gradient, per policy.
+
+Evidence of implicit communication beyond the ablation (models/README.md, issue 11). A trail
+is laid by carrying agents walking from a resource towards the nest: its concentration is
+highest at the resource end (SPEC §2), so a loaded agent that reads it should move *down* the
+gradient and an empty agent looking for food *up*. For every step of every stored scenario,
+each agent that was free and moved (not into a queue) from a cell whose pheromone, as it
+observed it, was at least ``--threshold`` is counted by how the pheromone of the cell it
+moved to compares with its own: up, down or level. A carrying agent deposits on the cell it
+stood on when it acts (SPEC §1), so its own fresh trail never counts as the cell it stands on.
+C-SAF-11 never reads the ForMIC pheromone (its homing shows what the geometry alone gives) and
+random walkers give the floor.
+
+    .venv/bin/python scripts/trail_following.py --model models/training/paper-ref/latest.pt \
+        --teams 32,64 --count 4 --out models/trail_following.json
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import click
+import numpy as np
+
+from formic_runtime.episode import run_episode
+from formic_runtime.threads import configure_threads
+from formic_world.scenario_sets import load_set
+
+KINDS = ("up", "down", "level")
+
+
+class TrailCounter:
+    """Counts, per load state, moves up / down / level along the pheromone the agent saw."""
+
+    def __init__(self, threshold: float):
+        self.threshold = threshold
+        self.counts = {load: dict.fromkeys(KINDS, 0) for load in ("loaded", "empty")}
+        self.free_moves = {"loaded": 0, "empty": 0}
+        self.before: tuple[np.ndarray, ...] | None = None
+
+    def start(self, world) -> None:
+        self.before = (world.pos.copy(), world.carrying.copy(), world.queued.copy(), world.visible_pheromone().copy())
+
+    def __call__(self, world) -> None:
+        """After each step (the first step only sets the state the next one is compared with)."""
+        if self.before is None:
+            self.start(world)
+            return
+        pos, carrying, queued, seen = self.before
+        moved = (world.pos != pos).any(axis=1) & ~queued & ~world.queued
+        rows, cols = pos[:, 0], pos[:, 1]
+        here = seen[rows, cols]
+        there = seen[world.pos[:, 0], world.pos[:, 1]]
+        on_trail = moved & (here >= self.threshold)
+        for load, mask in (("loaded", carrying), ("empty", ~carrying)):
+            self.free_moves[load] += int((moved & mask).sum())
+            sel = on_trail & mask
+            self.counts[load]["up"] += int((sel & (there > here)).sum())
+            self.counts[load]["down"] += int((sel & (there < here)).sum())
+            self.counts[load]["level"] += int((sel & (there == here)).sum())
+        self.start(world)
+
+    def table(self) -> dict:
+        out = {}
+        for load, counts in self.counts.items():
+            total = sum(counts.values())
+            out[load] = {
+                "moves_on_trail": total,
+                "share_of_moves_on_trail": total / max(self.free_moves[load], 1),
+                **{f"share_{kind}": counts[kind] / max(total, 1) for kind in KINDS},
+            }
+        return out
+
+
+@click.command()
+@click.option("--policies", default="formic,csaf11,random", show_default=True)
+@click.option("--model", type=click.Path(exists=True, dir_okay=False), help="Checkpoint of the formic policy.")
+@click.option("--scenarios", "scenario_dir", default="eval/readme/scenarios", show_default=True,
+              type=click.Path(exists=True, file_okay=False))
+@click.option("--size", default=128, show_default=True)
+@click.option("--teams", default="32,64", show_default=True)
+@click.option("--count", default=4, show_default=True, help="Scenarios per team size (the first, by name).")
+@click.option("--steps", type=int, help="Steps per episode (default: the scenario's).")
+@click.option("--threshold", default=0.05, show_default=True, help="Pheromone that makes a cell part of a trail.")
+@click.option("--out", type=click.Path(dir_okay=False), help="Also write the table here as JSON.")
+def main(policies, model, scenario_dir, size, teams, count, steps, threshold, out) -> None:
+    """Share of moves up / down the pheromone gradient on trails, loaded and empty agents."""
+    configure_threads()
+    results = []
+    for team in (int(t) for t in teams.split(",")):
+        prefix = f"s{size}_n{team}_o0_infinite_w0_"
+        files = [f for f in sorted(Path(scenario_dir).glob(f"{prefix}*.json"))][:count]
+        if not files:
+            raise click.ClickException(f"no stored scenarios {prefix}* in {scenario_dir}")
+        for policy in policies.split(","):
+            counter = TrailCounter(threshold)
+            food = []
+            for path in files:
+                (_, scenario), = load_set(path)
+                counter.before = None
+                episode = run_episode(scenario, policy, model=model, steps=steps, on_step=counter)
+                food.append(episode.food)
+            row = {"policy": policy, "agents": team, "scenarios": len(files), "food": float(np.mean(food)),
+                   **counter.table()}
+            results.append(row)
+            click.echo(f"{policy:8s} {team:4d} agents  food {row['food']:6.1f}  " + "  ".join(
+                f"{load}: {row[load]['share_of_moves_on_trail']:.0%} of moves on trail, "
+                f"down {row[load]['share_down']:.0%} up {row[load]['share_up']:.0%}"
+                for load in ("loaded", "empty")))
+    if out:
+        Path(out).write_text(json.dumps({"threshold": threshold, "model": model, "results": results}, indent=1))
+
+
+if __name__ == "__main__":
+    main()
