@@ -19,7 +19,7 @@ from formic_agent.learned import LearnedPolicy
 from formic_agent.network import NETWORK_PRESETS, ForMICNet, NetworkConfig, count_parameters
 from formic_agent.policy import AgentBatch
 from formic_runtime.registry import make_policy
-from formic_trainer.algorithm import policy_losses, set_learning_rate
+from formic_trainer.algorithm import policy_losses, sampling_mask, set_learning_rate
 from formic_trainer.config import make_config, parse_overrides
 from formic_trainer.train import Trainer
 from formic_trainer.worlds import MetaAgents, share_rewards
@@ -276,3 +276,17 @@ def test_a_committed_checkpoint_resumes_weights_optimiser_and_counters(tmp_path)
     learner.close()
     saved = read_checkpoint(tmp_path / "latest.pt")["progress"]
     assert (saved["episode"], saved["updates"]) == (progress["episode"] + 1, progress["updates"] + 1)
+
+
+@pytest.mark.parametrize("mask_join", [False, True])
+def test_sampling_mask_is_a_new_array_the_actor_may_widen(mask_join):
+    """Annealing widens the sampling mask of unfiltered agents in place; the valid-action
+    target it was derived from must stay as it was (with mask_join it once was the same array)."""
+    cfg = make_config("cpu", mask_join=mask_join)
+    train_mask = np.array([[True, False, False, False, False], [False, True, False, False, True]])
+    target = train_mask.copy()
+    allowed = sampling_mask(cfg, train_mask)
+    allowed[0] = True
+    assert np.array_equal(train_mask, target)
+    assert allowed[1, 4] and allowed[1].sum() == 2
+    assert bool(sampling_mask(cfg, train_mask)[0, 4]) is not mask_join

@@ -23,11 +23,11 @@ def training_network(cfg: TrainConfig) -> ForMICNet:
 
 
 def sampling_mask(cfg: TrainConfig, train_mask):
-    """Actions the behaviour policy may sample in "mask" mode (numpy or torch)."""
-    if cfg.mask_join:
-        return train_mask
+    """Actions the behaviour policy may sample in "mask" mode (numpy or torch): a new array,
+    which the actor widens for unfiltered agents without touching the valid-action target."""
     allowed = train_mask.clone() if isinstance(train_mask, torch.Tensor) else train_mask.copy()
-    allowed[..., 4] = True
+    if not cfg.mask_join:
+        allowed[..., 4] = True
     return allowed
 
 
