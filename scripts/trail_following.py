@@ -6,7 +6,8 @@ highest at the resource end (SPEC §2), so a loaded agent that reads it should m
 gradient and an empty agent looking for food *up*. For every step of every stored scenario,
 each agent that was free and moved (not into a queue) from a cell whose pheromone, as it
 observed it, was at least ``--threshold`` is counted by how the pheromone of the cell it
-moved to compares with its own: up, down or level. A carrying agent deposits on the cell it
+moved to compares with its own: up, down (still on the trail), off the trail (below the
+threshold) or level. A carrying agent deposits on the cell it
 stood on when it acts (SPEC §1), so its own fresh trail never counts as the cell it stands on.
 C-SAF-11 never reads the ForMIC pheromone (its homing shows what the geometry alone gives) and
 random walkers give the floor.
@@ -27,7 +28,7 @@ from formic_runtime.episode import run_episode
 from formic_runtime.threads import configure_threads
 from formic_world.scenario_sets import load_set
 
-KINDS = ("up", "down", "level")
+KINDS = ("up", "down", "off", "level")
 
 
 class TrailCounter:
@@ -56,9 +57,11 @@ class TrailCounter:
         for load, mask in (("loaded", carrying), ("empty", ~carrying)):
             self.free_moves[load] += int((moved & mask).sum())
             sel = on_trail & mask
+            stays = there >= self.threshold
             self.counts[load]["up"] += int((sel & (there > here)).sum())
-            self.counts[load]["down"] += int((sel & (there < here)).sum())
-            self.counts[load]["level"] += int((sel & (there == here)).sum())
+            self.counts[load]["down"] += int((sel & stays & (there < here)).sum())
+            self.counts[load]["off"] += int((sel & ~stays).sum())
+            self.counts[load]["level"] += int((sel & stays & (there == here)).sum())
         self.start(world)
 
     def table(self) -> dict:
@@ -106,7 +109,7 @@ def main(policies, model, scenario_dir, size, teams, count, steps, threshold, ou
             results.append(row)
             click.echo(f"{policy:8s} {team:4d} agents  food {row['food']:6.1f}  " + "  ".join(
                 f"{load}: {row[load]['share_of_moves_on_trail']:.0%} of moves on trail, "
-                f"down {row[load]['share_down']:.0%} up {row[load]['share_up']:.0%}"
+                f"up {row[load]['share_up']:.0%} down {row[load]['share_down']:.0%} off {row[load]['share_off']:.0%}"
                 for load in ("loaded", "empty")))
     if out:
         Path(out).write_text(json.dumps({"threshold": threshold, "model": model, "results": results}, indent=1))

@@ -1,0 +1,73 @@
+"""Learning curves of one or more training stages, read from their TensorBoard logs, as one PNG.
+
+Stages are drawn one after the other on a common episode axis (a stage's episodes continue
+where the previous one's ended), so a model trained in stages shows as one curve:
+
+    .venv/bin/python scripts/learning_curves.py models/training/paper-ref models/training/paper-crowd \
+        --out models/formic_paper_curves.png
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator  # noqa: E402
+
+PANELS = (("train/food_env0", "train/food_env1", "train/food_env2", "train/food_env3"),
+          ("train/entropy",), ("train/valid_accuracy",), ("train/filter_probability", "train/highway_intensity"))
+SCHEDULES = {"train/filter_probability", "train/highway_intensity"}  # drawn as they are, not smoothed
+
+
+def read_scalars(run_dir: Path) -> dict[str, list[tuple[int, float]]]:
+    """Every scalar of every event file of a run (later files win on repeated steps: a resumed run)."""
+    series: dict[str, dict[int, float]] = {}
+    for path in sorted((run_dir / "tb").glob("events.out.tfevents.*")):
+        events = EventAccumulator(str(path))
+        events.Reload()
+        for tag in events.Tags()["scalars"]:
+            series.setdefault(tag, {}).update({e.step: e.value for e in events.Scalars(tag)})
+    return {tag: sorted(points.items()) for tag, points in series.items()}
+
+
+@click.command()
+@click.argument("run_dirs", nargs=-1, required=True, type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.option("--out", required=True, type=click.Path(dir_okay=False))
+@click.option("--smooth", default=10, show_default=True, help="Moving-average window (logged points).")
+def main(run_dirs: tuple[Path, ...], out: str, smooth: int) -> None:
+    """Draw food per world, entropy, valid-action accuracy and the filter/highway schedules."""
+    fig, axes = plt.subplots(len(PANELS), 1, figsize=(9, 11), sharex=True)
+    offset = 0
+    for run_dir in run_dirs:
+        series = read_scalars(run_dir)
+        last = 0
+        for ax, tags in zip(axes, PANELS):
+            for tag in tags:
+                points = series.get(tag, [])
+                if not points:
+                    continue
+                steps = [offset + s for s, _ in points]
+                values = [v for _, v in points]
+                window = 1 if tag in SCHEDULES else max(1, min(smooth, len(values)))
+                smoothed = [sum(values[max(0, i - window + 1):i + 1]) / len(values[max(0, i - window + 1):i + 1])
+                            for i in range(len(values))]
+                ax.plot(steps, smoothed, label=f"{run_dir.name}: {tag.split('/')[-1]}")
+                last = max(last, points[-1][0])
+        for ax in axes:
+            ax.axvline(offset, color="grey", linewidth=0.5)
+        offset += last
+    for ax, tags in zip(axes, PANELS):
+        ax.set_ylabel(", ".join(t.split("/")[-1] for t in tags), fontsize=8)
+        ax.legend(fontsize=6, ncol=2)
+    axes[-1].set_xlabel("training episode (all stages)")
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+    click.echo(f"wrote {out}")
+
+
+if __name__ == "__main__":
+    main()
