@@ -173,3 +173,23 @@ def test_stale_shared_memory_is_removed_and_live_memory_kept(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == [
         "fastrtps_00000000000000bb", "fastrtps_00000000000000bb_el",
         "fastrtps_00000000000000cc", "fastrtps_00000000000000cc_el"]
+
+
+def test_ctrl_c_during_a_child_wait_leaves_the_child_reapable():
+    """A launcher interrupted while it waits for a child must still stop and reap it (Popen's
+    own wait could leave its lock held and block the final reap forever)."""
+    import os
+    import subprocess
+    import threading
+
+    from formic_ros.processes import Child
+
+    child = Child("sleeper", subprocess.Popen(["sleep", "30"], start_new_session=True))
+    for _ in range(20):  # interrupts landing at different moments of the wait loop
+        threading.Timer(0.01, os.kill, (os.getpid(), signal.SIGINT)).start()
+        with pytest.raises(KeyboardInterrupt):
+            child.wait(5.0)
+        assert child.alive
+    os.killpg(child.process.pid, signal.SIGKILL)
+    assert child.poll(block=True) == -signal.SIGKILL
+    assert not child.alive and child.process.poll() == -signal.SIGKILL

@@ -43,12 +43,26 @@ class Child:
 
     @property
     def alive(self) -> bool:
-        return self.process.poll() is None
+        return self.poll() is None
 
     @property
     def failed(self) -> bool:
         """Exited with a non-zero status."""
-        return bool(self.process.poll())
+        return bool(self.poll())
+
+    def poll(self, block: bool = False) -> int | None:
+        """The exit status, or None while it runs. Not Popen.poll/wait: they take a lock that a
+        KeyboardInterrupt landing between its acquire and its ``try`` leaves held, after which
+        every wait blocks forever (a launcher rarely hung on Ctrl-C); ``os.waitpid`` holds none."""
+        if self.process.returncode is None:
+            try:
+                pid, status = os.waitpid(self.process.pid, 0 if block else os.WNOHANG)
+            except ChildProcessError:  # reaped, its status lost to an interrupt: it has exited
+                self.process.returncode = -1
+            else:
+                if pid:
+                    self.process.returncode = os.waitstatus_to_exitcode(status)
+        return self.process.returncode
 
     def signal(self, signum: int) -> None:
         with suppress(ProcessLookupError):
@@ -56,8 +70,9 @@ class Child:
 
     def wait(self, timeout_s: float) -> None:
         """Wait up to ``timeout_s`` for the child to exit (it may still run afterwards)."""
-        with suppress(subprocess.TimeoutExpired):
-            self.process.wait(timeout=max(0.0, timeout_s))
+        deadline = time.monotonic() + timeout_s
+        while self.alive and time.monotonic() < deadline:
+            time.sleep(min(0.02, max(0.0, deadline - time.monotonic())))
 
 
 SHM_DIR = Path("/dev/shm")
@@ -98,7 +113,7 @@ def stop_all(children: list[Child]) -> dict[str, int]:
     for child in children:
         if child.alive:
             child.signal(signal.SIGKILL)
-    return {child.name: child.process.wait() for child in children}
+    return {child.name: child.poll(block=True) for child in children}
 
 
 def watch(main: Child, others: list[Child], timeout_s: float | None, what: str, poll_s: float = 0.2,
