@@ -13,6 +13,7 @@ from pathlib import Path
 
 import click
 import matplotlib
+import numpy as np
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
@@ -53,8 +54,9 @@ def main(run_dirs: tuple[Path, ...], out: str, smooth: int) -> None:
                 steps = [offset + s for s, _ in points]
                 values = [v for _, v in points]
                 window = 1 if tag in SCHEDULES else max(1, min(smooth, len(values)))
-                smoothed = [sum(values[max(0, i - window + 1):i + 1]) / len(values[max(0, i - window + 1):i + 1])
-                            for i in range(len(values))]
+                totals = np.cumsum([0.0, *values])
+                starts = np.maximum(np.arange(len(values)) - window + 1, 0)
+                smoothed = (totals[1:] - totals[starts]) / (np.arange(len(values)) + 1 - starts)
                 ax.plot(steps, smoothed, label=f"{run_dir.name}: {tag.split('/')[-1]}")
                 last = max(last, points[-1][0])
         for ax in axes:

@@ -93,7 +93,7 @@ def main(policies, model, scenario_dir, size, teams, count, steps, threshold, ou
     results = []
     for team in (int(t) for t in teams.split(",")):
         prefix = f"s{size}_n{team}_o0_infinite_w0_"
-        files = [f for f in sorted(Path(scenario_dir).glob(f"{prefix}*.json"))][:count]
+        files = sorted(Path(scenario_dir).glob(f"{prefix}*.json"))[:count]
         if not files:
             raise click.ClickException(f"no stored scenarios {prefix}* in {scenario_dir}")
         for policy in policies.split(","):
