@@ -13,6 +13,7 @@ msg_mod = pytest.importorskip("formic_interfaces.msg")
 from conftest import agent, build_world, resource, step  # noqa: E402
 
 from formic_agent.policy import AgentBatch  # noqa: E402
+from formic_record import compact  # noqa: E402
 from formic_record.replay import RecordedState  # noqa: E402
 from formic_ros import convert, wire  # noqa: E402
 from formic_world import World, WorldConfig, generate_scenario  # noqa: E402
@@ -65,11 +66,16 @@ def test_compact_holds_a_bit_per_value_and_the_values_that_are_not_zero_or_one()
     assert np.float32(37 / 40) in obs[:, CH_RESOURCE_ENTRY]
     others = obs[(obs != 0) & (obs != 1)]
     assert len(np.setdiff1d(obs[:, CH_PHEROMONE], [0, 1])) > 0
-    nonzero_bits, one_bits, other_values = wire.encode_compact(obs)
+    nonzero_bits, one_bits, other_values = compact.encode_compact(obs)
     assert len(nonzero_bits) == 4 * 8 * 11 * 11 // 8
     assert len(one_bits) == (np.count_nonzero(obs) + 7) // 8
     assert bits(np.frombuffer(other_values, dtype=np.float32)) == bits(others)
-    assert bits(wire.decode_compact(nonzero_bits, one_bits, other_values, obs.shape)) == bits(obs)
+    assert bits(compact.decode_compact(nonzero_bits, one_bits, other_values, obs.shape)) == bits(obs)
+    # as rclpy hands the fields over (bytes, array.array) and as a bag reader does (NumPy arrays)
+    fields = wire.observation_fields(obs, "compact")
+    assert isinstance(fields["nonzero_bits"], bytes)
+    assert bits(compact.decode_compact(fields["nonzero_bits"], fields["one_bits"], fields["other_values"],
+                                       obs.shape)) == bits(obs)
 
 
 def test_compact_keeps_every_float_bit_for_bit():
@@ -81,23 +87,23 @@ def test_compact_keeps_every_float_bit_for_bit():
     words.reshape(3, -1)[:, ::3] = special
     words[1, 2] = 0x3F800000
     obs = words.view(np.float32)
-    back = wire.decode_compact(*wire.encode_compact(obs), obs.shape)
+    back = compact.decode_compact(*compact.encode_compact(obs), obs.shape)
     assert back.dtype == np.float32 and back.shape == obs.shape
     assert bits(back) == bits(obs)
     empty = np.zeros((0, 8, 11, 11), dtype=np.float32)
-    assert wire.decode_compact(*wire.encode_compact(empty), empty.shape).shape == empty.shape
+    assert compact.decode_compact(*compact.encode_compact(empty), empty.shape).shape == empty.shape
 
 
 def test_malformed_compact_fields_are_rejected():
     _, result = finite_resource_world()
     obs = result.observations
-    nonzero_bits, one_bits, other_values = wire.encode_compact(obs)
+    nonzero_bits, one_bits, other_values = compact.encode_compact(obs)
     with pytest.raises(ValueError, match="nonzero bytes"):
-        wire.decode_compact(nonzero_bits[:-1], one_bits, other_values, obs.shape)
+        compact.decode_compact(nonzero_bits[:-1], one_bits, other_values, obs.shape)
     with pytest.raises(ValueError, match="one-bit bytes"):
-        wire.decode_compact(nonzero_bits, one_bits + b"\0", other_values, obs.shape)
+        compact.decode_compact(nonzero_bits, np.append(one_bits, np.uint8(0)), other_values, obs.shape)
     with pytest.raises(ValueError, match="other values"):
-        wire.decode_compact(nonzero_bits, one_bits, other_values[:-1], obs.shape)
+        compact.decode_compact(nonzero_bits, one_bits, other_values[:-1], obs.shape)
     with pytest.raises(ValueError, match="unknown observation encoding"):
         wire.encoding_code("float16")
     msg = encode(*finite_resource_world())

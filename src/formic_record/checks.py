@@ -8,15 +8,14 @@ Bitwise wherever the world publishes bits (observations, pheromone, loads, rewar
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 
+from formic_record.compact import decode_compact
 from formic_world import World
 from formic_world.geometry import CACHE, RESOURCE
 
 ENCODING_FLOAT32, ENCODING_COMPACT = 0, 1
-_ONE = np.float32(1.0).view(np.uint32)
 
 AGENT_OBSERVATION = "formic_interfaces/msg/AgentObservation"
 OBSERVATION_BATCH = "formic_interfaces/msg/ObservationBatch"
@@ -61,27 +60,6 @@ def _fields(fields) -> str | None:
 def _scalars(pairs) -> str | None:
     problem = _fields((name, [recorded], [expected], dtype) for name, recorded, expected, dtype in pairs)
     return problem and problem.replace("[0]", "")
-
-
-def decode_compact(nonzero_bits, one_bits, other_values, shape: tuple[int, ...]) -> np.ndarray:
-    """:func:`formic_ros.wire.decode_compact` without ROS (ValueError on malformed fields)."""
-    rows, size = shape[0], math.prod(shape[1:])
-    row_bytes = (size + 7) // 8
-    nonzero_bits, one_bits = np.asarray(nonzero_bits, np.uint8), np.asarray(one_bits, np.uint8)
-    others = np.ascontiguousarray(other_values, dtype=np.float32).view(np.uint32)
-    if len(nonzero_bits) != rows * row_bytes:
-        raise ValueError("nonzero_bits: wrong length")
-    nonzero = np.unpackbits(nonzero_bits.reshape(rows, row_bytes), axis=1, count=size).view(bool)
-    kept = np.full(np.count_nonzero(nonzero), _ONE, dtype=np.uint32)
-    if len(one_bits) != (len(kept) + 7) // 8:
-        raise ValueError("one_bits: wrong length")
-    is_other = ~np.unpackbits(one_bits, count=len(kept)).view(bool)
-    if np.count_nonzero(is_other) != len(others):
-        raise ValueError("other_values: wrong length")
-    kept[is_other] = others
-    words = np.zeros((rows, size), dtype=np.uint32)
-    words[nonzero] = kept
-    return words.view(np.float32).reshape(shape)
 
 
 def check_agent_observation(msg, world: World) -> str | None:

@@ -2,17 +2,18 @@
 
 Array fields are filled from ``array.array`` (about 1 µs a field; a NumPy array or a list
 costs about 80 µs) and read back with ``np.frombuffer`` (no copy). Observations travel
-float32 or compact (lossless, see :func:`encode_compact`); readers take either
+float32 or compact (lossless, see :mod:`formic_record.compact`); readers take either
 (:func:`decode_observations`).
 """
 
 from __future__ import annotations
 
 import array
-import math
 
 import numpy as np
 from formic_interfaces.msg import ObservationBatch
+
+from formic_record.compact import decode_compact, encode_compact
 
 
 # ----------------------------------------------------------------------------- arrays
@@ -45,7 +46,6 @@ def read(field, dtype) -> np.ndarray:
 
 # ---------------------------------------------------------------- observation encoding
 ENCODINGS = {"float32": ObservationBatch.ENCODING_FLOAT32, "compact": ObservationBatch.ENCODING_COMPACT}
-_ONE = np.float32(1.0).view(np.uint32)  # the bits of 1.0
 
 
 def encoding_code(name: str) -> int:
@@ -53,41 +53,6 @@ def encoding_code(name: str) -> int:
         return ENCODINGS[name]
     except KeyError:
         raise ValueError(f"unknown observation encoding {name!r}; choose from {', '.join(ENCODINGS)}") from None
-
-
-def encode_compact(observations: np.ndarray) -> tuple[bytes, bytes, array.array]:
-    """Rows of float32 observations, losslessly and small: per row, one bit per value that is
-    not +0.0 (``nonzero_bits``); over all rows, one bit per such value that is exactly 1.0
-    (``one_bits``); the remaining values as float32 (``other_values``). Observation channels
-    are 0/1 but for the pheromone and the resource-entry fractions, so 128 agents' 0.5 MB
-    become some 50 KB. Compared bitwise: every float (-0.0, NaN) comes back as it was."""
-    rows, size = observations.shape[0], math.prod(observations.shape[1:])
-    words = np.ascontiguousarray(observations, dtype=np.float32).view(np.uint32).reshape(rows, size)
-    nonzero = words != 0
-    kept = words[nonzero]
-    is_one = kept == _ONE
-    return u8(np.packbits(nonzero, axis=1)), u8(np.packbits(is_one)), f32(kept[~is_one].view(np.float32))
-
-
-def decode_compact(nonzero_bits, one_bits, other_values, shape: tuple[int, ...]) -> np.ndarray:
-    """Inverse of :func:`encode_compact`: float32 rows of ``shape`` (rows first), bit for bit."""
-    rows, size = shape[0], math.prod(shape[1:])
-    row_bytes = (size + 7) // 8
-    nonzero_bits, one_bits = read(nonzero_bits, np.uint8), read(one_bits, np.uint8)
-    others = read(other_values, np.uint32)
-    if len(nonzero_bits) != rows * row_bytes:
-        raise ValueError(f"compact observations: {len(nonzero_bits)} nonzero bytes for {rows} rows of {size} values")
-    nonzero = np.unpackbits(nonzero_bits.reshape(rows, row_bytes), axis=1, count=size).view(bool)
-    kept = np.full(np.count_nonzero(nonzero), _ONE, dtype=np.uint32)
-    if len(one_bits) != (len(kept) + 7) // 8:
-        raise ValueError(f"compact observations: {len(one_bits)} one-bit bytes for {len(kept)} nonzero values")
-    is_other = ~np.unpackbits(one_bits, count=len(kept)).view(bool)
-    if np.count_nonzero(is_other) != len(others):
-        raise ValueError(f"compact observations: {len(others)} other values, {np.count_nonzero(is_other)} expected")
-    kept[is_other] = others
-    words = np.zeros((rows, size), dtype=np.uint32)
-    words[nonzero] = kept
-    return words.view(np.float32).reshape(shape)
 
 
 def decode_observations(msg: ObservationBatch) -> np.ndarray:
@@ -106,4 +71,4 @@ def observation_fields(observations: np.ndarray, encoding: str) -> dict:
     if code == ObservationBatch.ENCODING_FLOAT32:
         return dict(encoding=code, data=f32(observations))
     nonzero_bits, one_bits, other_values = encode_compact(observations)
-    return dict(encoding=code, nonzero_bits=nonzero_bits, one_bits=one_bits, other_values=other_values)
+    return dict(encoding=code, nonzero_bits=u8(nonzero_bits), one_bits=u8(one_bits), other_values=f32(other_values))
