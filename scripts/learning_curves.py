@@ -5,6 +5,9 @@ where the previous one's ended), so a model trained in stages shows as one curve
 
     .venv/bin/python scripts/learning_curves.py models/training/paper-ref models/training/paper-crowd \
         --out models/formic_paper_curves.png
+
+With ``--overlay`` every run starts at episode 0 and the food panel shows each run's mean over
+its training worlds: runs of one recipe with one switch changed (the Table I ablations) side by side.
 """
 
 from __future__ import annotations
@@ -22,6 +25,7 @@ from tensorboard.backend.event_processing.event_accumulator import EventAccumula
 PANELS = (("train/food_env0", "train/food_env1", "train/food_env2", "train/food_env3"),
           ("train/entropy",), ("train/valid_accuracy",), ("train/filter_probability", "train/highway_intensity"))
 SCHEDULES = {"train/filter_probability", "train/highway_intensity"}  # drawn as they are, not smoothed
+FOOD_MEAN = "train/food_mean_of_worlds"
 
 
 def read_scalars(run_dir: Path) -> dict[str, list[tuple[int, float]]]:
@@ -35,19 +39,29 @@ def read_scalars(run_dir: Path) -> dict[str, list[tuple[int, float]]]:
     return {tag: sorted(points.items()) for tag, points in series.items()}
 
 
+def mean_over_worlds(series: dict[str, list[tuple[int, float]]]) -> list[tuple[int, float]]:
+    """Food averaged over the training worlds, at the episodes every world logged."""
+    worlds = [dict(series[tag]) for tag in PANELS[0] if tag in series]
+    common = sorted(set.intersection(*(set(w) for w in worlds))) if worlds else []
+    return [(step, float(np.mean([w[step] for w in worlds]))) for step in common]
+
+
 @click.command()
 @click.argument("run_dirs", nargs=-1, required=True, type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.option("--out", required=True, type=click.Path(dir_okay=False))
 @click.option("--smooth", default=10, show_default=True, help="Moving-average window (logged points).")
-def main(run_dirs: tuple[Path, ...], out: str, smooth: int) -> None:
+@click.option("--overlay", is_flag=True, help="Draw every run from episode 0 (comparison), not one after the other (stages).")
+def main(run_dirs: tuple[Path, ...], out: str, smooth: int, overlay: bool) -> None:
     """Draw food per world, entropy, valid-action accuracy and the filter/highway schedules."""
     fig, axes = plt.subplots(len(PANELS), 1, figsize=(9, 11), sharex=True)
     offset = 0
     for run_dir in run_dirs:
         series = read_scalars(run_dir)
+        if overlay:
+            series[FOOD_MEAN] = mean_over_worlds(series)
         last = 0
         for ax, tags in zip(axes, PANELS):
-            for tag in tags:
+            for tag in ((FOOD_MEAN,) if overlay and tags == PANELS[0] else tags):
                 points = series.get(tag, [])
                 if not points:
                     continue
@@ -59,13 +73,15 @@ def main(run_dirs: tuple[Path, ...], out: str, smooth: int) -> None:
                 smoothed = (totals[1:] - totals[starts]) / (np.arange(len(values)) + 1 - starts)
                 ax.plot(steps, smoothed, label=f"{run_dir.name}: {tag.split('/')[-1]}")
                 last = max(last, points[-1][0])
-        for ax in axes:
-            ax.axvline(offset, color="grey", linewidth=0.5)
-        offset += last
+        if not overlay:
+            for ax in axes:
+                ax.axvline(offset, color="grey", linewidth=0.5)
+            offset += last
     for ax, tags in zip(axes, PANELS):
-        ax.set_ylabel(", ".join(t.split("/")[-1] for t in tags), fontsize=8)
+        shown = (FOOD_MEAN,) if overlay and tags == PANELS[0] else tags
+        ax.set_ylabel(", ".join(t.split("/")[-1] for t in shown), fontsize=8)
         ax.legend(fontsize=6, ncol=2)
-    axes[-1].set_xlabel("training episode (all stages)")
+    axes[-1].set_xlabel("training episode" if overlay else "training episode (all stages)")
     fig.tight_layout()
     fig.savefig(out, dpi=110)
     click.echo(f"wrote {out}")
