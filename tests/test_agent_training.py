@@ -88,6 +88,7 @@ def test_trainer_resumes_exactly_where_its_checkpoint_left(tmp_path):
     saved = {k: v.clone() for k, v in first.net.state_dict().items()}
     resumed = Trainer(cfg, tmp_path, resume=True, log=lambda *_: None)
     assert resumed.episode == 2 and resumed.updates == first.updates
+    assert 0 < resumed.learner.cpu_seconds == first.learner.cpu_seconds  # the CPU clock travels too
     for key, value in saved.items():
         assert torch.equal(resumed.net.state_dict()[key], value)
     with pytest.raises(ValueError, match="different settings"):
@@ -272,10 +273,13 @@ def test_a_committed_checkpoint_resumes_weights_optimiser_and_counters(tmp_path)
         actor.reward(rewards)
         frame = envs.observe()
     assert np.isfinite(learner.learn(actor.rollout(frame.obs, frame.extra))["loss"])
-    learner.end_episodes(1, {})
+    # a checkpoint from before the CPU clock resumes with its wall seconds in its place
+    assert "cpu_seconds" not in progress and learner.cpu_seconds == progress["seconds"]
+    learner.end_episodes(1, {}, seconds=2.0, cpu_seconds=1.5)
     learner.close()
     saved = read_checkpoint(tmp_path / "latest.pt")["progress"]
     assert (saved["episode"], saved["updates"]) == (progress["episode"] + 1, progress["updates"] + 1)
+    assert (saved["seconds"], saved["cpu_seconds"]) == (progress["seconds"] + 2.0, progress["seconds"] + 1.5)
 
 
 @pytest.mark.parametrize("mask_join", [False, True])

@@ -19,7 +19,11 @@ from .config import TrainConfig, plain
 
 # settings a run may change when it resumes
 RESUMABLE = frozenset({"total_episodes", "threads", "checkpoint_every", "init_weights"})
-PROGRESS = ("episode", "updates", "env_steps", "seconds")  # the counters a checkpoint carries
+# the counters a checkpoint carries; "seconds" is the learner's wall clock, "cpu_seconds" this
+# process's CPU time over the same spans (what a CPU-hour budget counts: pauses and a busy
+# machine do not inflate it). Checkpoints from before cpu_seconds existed resume with their wall
+# seconds in its place, an upper bound.
+PROGRESS = ("episode", "updates", "env_steps", "seconds", "cpu_seconds")
 
 
 def learner_stream(cfg: TrainConfig, updates: int) -> np.random.Generator:
@@ -42,6 +46,7 @@ class Learner:
         self.updates = 0
         self.env_steps = 0
         self.seconds = 0.0
+        self.cpu_seconds = 0.0
         latest = self.run_dir / "latest.pt"
         if resume and latest.exists():
             self._resume(latest)
@@ -74,8 +79,9 @@ class Learner:
             )
         self.net.load_state_dict(payload["state_dict"])
         self.optimizer.load_state_dict(payload["optimizer"])
+        progress = payload["progress"]
         for key in PROGRESS:
-            setattr(self, key, payload["progress"][key])
+            setattr(self, key, progress[key] if key in progress else progress["seconds"])
         self.log(f"resumed from {path}: episode {self.episode}, update {self.updates}")
 
     def learn(self, rollout: dict[str, np.ndarray], env_steps: int | None = None) -> dict[str, float]:
@@ -87,12 +93,15 @@ class Learner:
         self.env_steps += int(rollout["actions"].size if env_steps is None else env_steps)
         return stats
 
-    def end_episodes(self, episodes: int, stats: dict[str, float], seconds: float = 0.0) -> None:
-        """``episodes`` environment episodes have ended (one episode set): their statistics go
-        to the log under ``train/``, and the checkpoint is written every ``checkpoint_every``."""
+    def end_episodes(self, episodes: int, stats: dict[str, float], seconds: float = 0.0,
+                     cpu_seconds: float = 0.0) -> None:
+        """``episodes`` environment episodes have ended (one episode set), taking ``seconds`` of
+        wall clock and ``cpu_seconds`` of CPU: their statistics go to the log under ``train/``,
+        and the checkpoint is written every ``checkpoint_every``."""
         self.episode += episodes
         self.episode_sets += 1
         self.seconds += seconds
+        self.cpu_seconds += cpu_seconds
         self.record("train", stats, self.episode)
         if self.seconds > 0:
             self.writer.add_scalar("train/agent_steps_per_s", self.env_steps / self.seconds, self.episode)

@@ -39,7 +39,7 @@ class Trainer:
     def run_episode_set(self) -> dict[str, float]:
         """Every meta-agent world plays one episode; the learner updates every rollout chunk."""
         cfg, envs, actor, learner = self.cfg, self.envs, self.actor, self.learner
-        started, episode = time.time(), learner.episode
+        started, cpu_started, episode = time.time(), time.process_time(), learner.episode
         envs.reset(episode)
         actor.start_episode(episode)
         food = np.zeros(len(envs.worlds))
@@ -62,7 +62,8 @@ class Trainer:
         result |= {f"food_env{i}": float(f) for i, f in enumerate(food)}
         result |= {"valid_rate": float(np.mean(actor.valid_rate)), "highway_intensity": envs.highway,
                    "deposit_strength": envs.deposit, "filter_probability": filter_probability(cfg, episode)}
-        learner.end_episodes(len(envs.worlds), result, seconds=time.time() - started)
+        learner.end_episodes(len(envs.worlds), result, seconds=time.time() - started,
+                             cpu_seconds=time.process_time() - cpu_started)
         return result
 
     def train(self, episodes: int | None = None, minutes: float | None = None) -> None:
@@ -80,7 +81,7 @@ class Trainer:
                 f"loss {stats['loss']:.3f} pi {stats['policy']:.3f} v {stats['value']:.3f} "
                 f"ent {stats['entropy']:.3f} valid {stats['valid_accuracy']:.3f} act-ok {stats['valid_rate']:.2f} | "
                 f"{imitation}I_h {stats['highway_intensity']:.2f} | {sps:,.0f} agent-steps/s | "
-                f"{learner.seconds / 60:.1f} min"
+                f"{learner.seconds / 60:.1f} min ({learner.cpu_seconds / 60:.1f} CPU)"
             )
         self.close()
 
