@@ -47,6 +47,10 @@ def row_food(eval_dir: Path, variant: str) -> tuple[dict[int, list[float]], str]
     return food, models.pop()
 
 
+def standard_error(values: list[float]) -> float:
+    return statistics.stdev(values) / len(values) ** 0.5 if len(values) > 1 else float("nan")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("rows", nargs="+", metavar="LABEL=EVAL_DIR[:VARIANT]")
@@ -63,11 +67,14 @@ def main() -> None:
     reference = {n: statistics.mean(rows[0][1][n]) for n in PAPER_TEAMS}
     paper_reference = PAPER_ABLATION.get(rows[0][0])
     teams = " | ".join(str(n) for n in PAPER_TEAMS)
+    counts = sorted({len(food[n]) for _, food, _ in rows for n in PAPER_TEAMS})
+    print(f"Food in {PAPER_STEPS} steps, mean ± standard error over {'/'.join(map(str, counts))} scenarios per team size.")
+    print()
     print(f"| variant | model | {teams} | ÷ first row | paper: {teams} | paper ÷ first row |")
     print("|---|---|" + "---:|" * (2 * len(PAPER_TEAMS) + 2))
     for label, food, model in rows:
         means = [statistics.mean(food[n]) for n in PAPER_TEAMS]
-        ours = " | ".join(f"{m:.1f} (n={len(food[n])})" for m, n in zip(means, PAPER_TEAMS))
+        ours = " | ".join(f"{m:.1f} ± {standard_error(food[n]):.1f}" for m, n in zip(means, PAPER_TEAMS))
         ratio = statistics.mean(m / reference[n] for m, n in zip(means, PAPER_TEAMS))
         paper = PAPER_ABLATION.get(label)
         if paper is None:
