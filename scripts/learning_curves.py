@@ -53,15 +53,16 @@ def mean_over_worlds(series: dict[str, list[tuple[int, float]]]) -> list[tuple[i
 @click.option("--overlay", is_flag=True, help="Draw every run from episode 0 (comparison), not one after the other (stages).")
 def main(run_dirs: tuple[Path, ...], out: str, smooth: int, overlay: bool) -> None:
     """Draw food per world, entropy, valid-action accuracy and the filter/highway schedules."""
-    fig, axes = plt.subplots(len(PANELS), 1, figsize=(9, 11), sharex=True)
+    panels = ((FOOD_MEAN,), *PANELS[1:]) if overlay else PANELS
+    fig, axes = plt.subplots(len(panels), 1, figsize=(9, 11), sharex=True)
     offset = 0
     for run_dir in run_dirs:
         series = read_scalars(run_dir)
         if overlay:
             series[FOOD_MEAN] = mean_over_worlds(series)
         last = 0
-        for ax, tags in zip(axes, PANELS):
-            for tag in ((FOOD_MEAN,) if overlay and tags == PANELS[0] else tags):
+        for ax, tags in zip(axes, panels):
+            for tag in tags:
                 points = series.get(tag, [])
                 if not points:
                     continue
@@ -77,9 +78,8 @@ def main(run_dirs: tuple[Path, ...], out: str, smooth: int, overlay: bool) -> No
             for ax in axes:
                 ax.axvline(offset, color="grey", linewidth=0.5)
             offset += last
-    for ax, tags in zip(axes, PANELS):
-        shown = (FOOD_MEAN,) if overlay and tags == PANELS[0] else tags
-        ax.set_ylabel(", ".join(t.split("/")[-1] for t in shown), fontsize=8)
+    for ax, tags in zip(axes, panels):
+        ax.set_ylabel(", ".join(t.split("/")[-1] for t in tags), fontsize=8)
         ax.legend(fontsize=6, ncol=2)
     axes[-1].set_xlabel("training episode" if overlay else "training episode (all stages)")
     fig.tight_layout()

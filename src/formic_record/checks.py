@@ -8,7 +8,6 @@ Bitwise wherever the world publishes bits (observations, pheromone, loads, rewar
 
 from __future__ import annotations
 
-
 import numpy as np
 
 from formic_record.compact import decode_compact

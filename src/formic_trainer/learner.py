@@ -79,9 +79,9 @@ class Learner:
             )
         self.net.load_state_dict(payload["state_dict"])
         self.optimizer.load_state_dict(payload["optimizer"])
-        progress = payload["progress"]
+        progress = {"cpu_seconds": payload["progress"]["seconds"]} | payload["progress"]
         for key in PROGRESS:
-            setattr(self, key, progress[key] if key in progress else progress["seconds"])
+            setattr(self, key, progress[key])
         self.log(f"resumed from {path}: episode {self.episode}, update {self.updates}")
 
     def learn(self, rollout: dict[str, np.ndarray], env_steps: int | None = None) -> dict[str, float]:
