@@ -294,3 +294,69 @@ def test_sampling_mask_is_a_new_array_the_actor_may_widen(mask_join):
     assert np.array_equal(train_mask, target)
     assert allowed[1, 4] and allowed[1].sum() == 2
     assert bool(sampling_mask(cfg, train_mask)[0, 4]) is not mask_join
+
+
+def test_action_feedback_is_the_agents_own_last_action_and_whether_it_took_effect():
+    """Exact features on a hand-built world: a free move, a move into another agent, JOIN away
+    from every queue, JOIN onto a cache queue, a queued agent (its action is ignored)."""
+    from conftest import build_world, agent
+    from formic_agent.network import N_FEEDBACK_INPUTS, ActionFeedback
+    from formic_world.geometry import EAST, JOIN
+
+    world = build_world([agent(2, 2), agent(3, 3), agent(3, 4), agent(6, 7, loaded=True),
+                         agent(7, 6, loaded=True, cache_queue=0)])
+    assert world.queued.tolist() == [False, False, False, False, True]
+    feedback = ActionFeedback(5)
+    ids = np.arange(5)
+    assert not feedback.features(ids, world.pos, world.queued).any()  # nothing done yet
+    actions = np.array([EAST, EAST, JOIN, JOIN, EAST])
+    feedback.record(ids, actions, world.pos.copy(), world.queued.copy())
+    world.step(actions)
+    assert world.queued.tolist() == [False, False, False, True, True]
+    got = feedback.features(ids, world.pos, world.queued)
+    want = np.zeros((5, N_FEEDBACK_INPUTS), dtype=np.float32)
+    want[0, [EAST, 5]] = 1  # moved east
+    want[1, EAST] = 1  # east was taken by agent 2: no effect
+    want[2, JOIN] = 1  # no queue entry near: no effect
+    want[3, [JOIN, 5]] = 1  # joined the north-east cache queue
+    assert got.tolist() == want.tolist()  # agent 4 was queued: its action was ignored
+    feedback.forget(np.array([0]))
+    assert not feedback.features(ids, world.pos, world.queued)[0].any()
+
+
+def test_training_frames_and_the_learned_policy_give_the_same_action_feedback():
+    """The trainer's worlds and the evaluation policy wire the feedback the same way."""
+    torch.manual_seed(1)
+    cfg = make_config("cpu", network="cpu-feedback", seed=2, **TINY)
+    envs = MetaAgents(cfg)
+    envs.reset(0)
+    policy = LearnedPolicy(ForMICNet(NETWORK_PRESETS["cpu-feedback"]))
+    world = envs.worlds[0]
+    policy.reset(world.config.n_agents, 7)
+    effective = 0
+    for _ in range(24):
+        frame = envs.observe()
+        batch = AgentBatch.from_world(world, observations=frame.obs, action_mask=frame.valid)
+        want = policy.feedback.features(batch.agent_ids, batch.positions, batch.queued)
+        assert frame.extra[:, -want.shape[1]:].tolist() == want.tolist()
+        effective += int(want[:, -1].sum())
+        envs.step(policy.act(batch))
+    assert effective > 0
+
+
+def test_widening_a_network_with_feedback_inputs_keeps_what_it_does():
+    from formic_agent.checkpoint import initialise_from
+    from formic_agent.network import N_EXTRA_INPUTS
+
+    torch.manual_seed(3)
+    source, widened = ForMICNet(NETWORK_PRESETS["cpu-nest"]), ForMICNet(
+        dataclasses.replace(NETWORK_PRESETS["cpu-nest"], action_input=True))
+    initialise_from(widened, source)
+    obs, extra = torch.rand(3, 2, 8, 11, 11), torch.rand(3, 2, N_EXTRA_INPUTS)
+    state = source.initial_state(2)
+    for a, b in zip(source(obs, state, extra), widened(obs, state, extra)):
+        assert torch.equal(a, b) if isinstance(a, torch.Tensor) else all(map(torch.equal, a, b))
+    with pytest.raises(CheckpointError, match="only extra inputs may be added"):
+        initialise_from(ForMICNet(NETWORK_PRESETS["cpu"]), source)
+    with pytest.raises(CheckpointError, match="only extra inputs may be added"):
+        initialise_from(ForMICNet(NETWORK_PRESETS["paper"]), ForMICNet(NETWORK_PRESETS["cpu"]))

@@ -197,7 +197,7 @@ def rollout_arrays(steps: int = 3, agents: int = 2, optional: bool = True) -> di
     }
     if optional:
         arrays["sample_mask"] = rng.random((steps, agents, 5)) < 0.5
-        arrays["extra"] = rng.random((steps + 1, agents, 4), dtype=np.float32)
+        arrays["extra"] = rng.random((steps + 1, agents, convert.EXTRA_INPUT_COUNT), dtype=np.float32)
     return arrays
 
 

@@ -120,10 +120,10 @@ def test_distributed_training_matches_the_in_process_trainer(tmp_path):
 def test_switching_weights_per_episode_matches_with_whole_episode_rollouts(tmp_path):
     """Hosts that take new weights only at episode starts (the trainer learning while they
     play) act exactly as in one process when a rollout is a whole episode (the paper's way).
-    Here with the odometry-input network and the filter being annealed (some agents act
-    unfiltered in episode 1): the rollouts carry the odometry and the sampling masks."""
+    Here with the own-action-feedback network and the filter being annealed (some agents act
+    unfiltered in episode 1): the rollouts carry the extra inputs and the sampling masks."""
     torch.set_num_threads(1)
-    cfg = dataclasses.replace(CFG, rollout_steps=CFG.episode_steps, network="cpu-nest", filter_anneal_start=0,
+    cfg = dataclasses.replace(CFG, rollout_steps=CFG.episode_steps, network="cpu-feedback", filter_anneal_start=0,
                               filter_anneal_end=3)
     food, seeds, weights = in_process(tmp_path / "in_process", 2, resume=False, cfg=cfg)
     config_file = tmp_path / "train_config.json"

@@ -26,6 +26,7 @@ torch = pytest.importorskip("torch")
 
 from formic_agent.checkpoint import CheckpointError, read_checkpoint  # noqa: E402
 from formic_agent.learned import LearnedPolicy  # noqa: E402
+from formic_agent.network import N_EXTRA_INPUTS  # noqa: E402
 from formic_ros.convert import decode_rollout as rollout_arrays  # noqa: E402
 from formic_ros.learning_host import rollout_message  # noqa: E402
 from formic_ros.trainer_node import apply_weights  # noqa: E402
@@ -104,6 +105,7 @@ def test_rollout_message_round_trip(experience):
                         "sample_mask", "extra"}
     for key in got:
         assert np.array_equal(got[key], rollout[key]), key
+    assert got["extra"].shape[-1] == N_EXTRA_INPUTS  # convert.EXTRA_INPUT_COUNT, restated without torch
     msg.rewards = msg.rewards[:-1]
     with pytest.raises(ValueError, match="Rollout.rewards"):
         rollout_arrays(msg)

@@ -6,6 +6,7 @@ with the weights, so loading needs no guessing.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import io
 import os
@@ -64,6 +65,27 @@ def load_network(source: str | os.PathLike | bytes) -> tuple[ForMICNet, dict[str
         raise CheckpointError(f"checkpoint does not match its network configuration: {exc}") from exc
     net.eval()
     return net, payload
+
+
+def initialise_from(net: ForMICNet, source: ForMICNet) -> None:
+    """Start ``net`` from ``source``'s weights (a warm start). The two may differ only in extra
+    inputs ``net`` reads and ``source`` did not: their fc1 columns start at zero, so the
+    widened network acts exactly as ``source`` did until it learns to use them."""
+    same_body = dataclasses.replace(net.config, nest_input=False, action_input=False) == dataclasses.replace(
+        source.config, nest_input=False, action_input=False)
+    added = set(net.extra_columns()) - set(source.extra_columns())
+    if not same_body or set(source.extra_columns()) - set(net.extra_columns()):
+        raise CheckpointError(f"cannot start network {net.config} from {source.config}: only extra inputs may be added")
+    state = source.state_dict()
+    if added:
+        weight = torch.zeros_like(net.fc1.weight)
+        fc = net.config.fc
+        weight[:, :fc] = state["fc1.weight"][:, :fc]
+        target_column = {column: fc + i for i, column in enumerate(net.extra_columns())}
+        for i, column in enumerate(source.extra_columns()):
+            weight[:, target_column[column]] = state["fc1.weight"][:, fc + i]
+        state["fc1.weight"] = weight
+    net.load_state_dict(state)
 
 
 def checkpoint_id(path: str | os.PathLike) -> str:

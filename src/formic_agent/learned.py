@@ -9,7 +9,7 @@ import numpy as np
 import torch
 
 from .checkpoint import load_network
-from .network import ForMICNet, nest_features
+from .network import ActionFeedback, ForMICNet, extra_inputs, nest_features
 from .policy import AgentBatch, Policy, agent_uniforms, sample_rows
 
 
@@ -35,10 +35,12 @@ class LearnedPolicy(Policy):
         self.seed = int(seed)
         self.hidden = torch.zeros(1, n_agents, self.net.config.rnn)
         self.cell = torch.zeros(1, n_agents, self.net.config.rnn)
+        self.feedback = ActionFeedback(n_agents)
 
     def forget(self, agent_ids: np.ndarray) -> None:
         self.hidden[:, agent_ids] = 0.0
         self.cell[:, agent_ids] = 0.0
+        self.feedback.forget(agent_ids)
 
     def _ensure_capacity(self, max_id: int) -> None:
         if max_id >= self.hidden.shape[1]:
@@ -52,12 +54,16 @@ class LearnedPolicy(Policy):
         ids = torch.as_tensor(batch.agent_ids, dtype=torch.long)
         self._ensure_capacity(int(ids.max()))
         obs = torch.from_numpy(batch.observations).unsqueeze(0)
-        extra = torch.from_numpy(nest_features(batch.positions, batch.loads, batch.world_shape)).unsqueeze(0)
+        extra = extra_inputs(nest_features(batch.positions, batch.loads, batch.world_shape),
+                             self.feedback.features(batch.agent_ids, batch.positions, batch.queued))
         state = (self.hidden[:, ids], self.cell[:, ids])
-        logits, _, (h, c) = self.net(obs, state, extra)
+        logits, _, (h, c) = self.net(obs, state, torch.from_numpy(extra).unsqueeze(0))
         self.hidden[:, ids], self.cell[:, ids] = h, c
         logits = logits[0]
         if self.greedy:
-            return logits.argmax(dim=1).numpy().astype(np.int64)
-        probabilities = torch.softmax(logits.double(), dim=1).numpy()
-        return sample_rows(probabilities, agent_uniforms(self.seed, batch.step, batch.agent_ids, stream=13))
+            actions = logits.argmax(dim=1).numpy().astype(np.int64)
+        else:
+            probabilities = torch.softmax(logits.double(), dim=1).numpy()
+            actions = sample_rows(probabilities, agent_uniforms(self.seed, batch.step, batch.agent_ids, stream=13))
+        self.feedback.record(batch.agent_ids, actions, batch.positions, batch.queued)
+        return actions

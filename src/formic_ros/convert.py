@@ -45,7 +45,7 @@ def checked_subscription(node, msg_type, topic: str, profile, on_message, on_mal
 
 SCENARIO_FORMAT_VERSION = 1
 ACTION_COUNT = N_ACTIONS  # the learning host reads it
-EXTRA_INPUT_COUNT = 4  # formic_agent.network.N_EXTRA_INPUTS (importing it would bring torch)
+EXTRA_INPUT_COUNT = 10  # formic_agent.network.N_EXTRA_INPUTS (importing it would bring torch)
 
 
 # ------------------------------------------------------------------------ observations

@@ -17,7 +17,7 @@ import rclpy
 import torch
 from formic_interfaces.msg import ActionBatch, ObservationBatch, Rollout, ScenarioDescription, Weights
 
-from formic_agent.network import nest_features
+from formic_agent.network import ActionFeedback, extra_inputs, nest_features
 from formic_agent.policy import AgentBatch
 from formic_trainer.actor import Actor
 from formic_trainer.algorithm import training_network
@@ -33,7 +33,7 @@ from .trainer_node import apply_weights
 
 def rollout_message(rollout: dict[str, np.ndarray], weights_version: int, host: str, episode: int, food: float,
                     extra: bool = True) -> Rollout:
-    """An actor's rollout as the Rollout a host sends; the odometry inputs only with ``extra``
+    """An actor's rollout as the Rollout a host sends; the extra inputs only with ``extra``
     (networks that read them)."""
     if not extra:
         rollout = {key: value for key, value in rollout.items() if key != "extra"}
@@ -58,6 +58,7 @@ class HostActor:
         self.starting = False
         self.food = 0.0
         self.loads = np.zeros(len(self.ids))
+        self.feedback = ActionFeedback()
 
     def load_state_dict(self, state_dict: dict) -> None:
         self.net.load_state_dict(state_dict)
@@ -72,6 +73,7 @@ class HostActor:
         self.episode += 1
         self.starting = True  # the actor starts it at its first action (it may wait for weights)
         self.food, self.loads = 0.0, np.asarray(loads, dtype=np.float64)
+        self.feedback.reset(0)
 
     def act(self, batch: AgentBatch, train_mask: np.ndarray) -> np.ndarray:
         """Actions for every agent of the batch (rows in id order); needs weights."""
@@ -80,9 +82,14 @@ class HostActor:
             self.starting = False
         if not len(self.actor):
             self.chunk_version = self.version
-        extra = nest_features(batch.positions, batch.loads, batch.world_shape)
-        return self.actor.act(Frame(batch.observations, extra, batch.action_mask, train_mask,
-                                    np.asarray(batch.queued, dtype=bool)))
+        actions = self.actor.act(Frame(batch.observations, self._extra(batch), batch.action_mask, train_mask,
+                                       np.asarray(batch.queued, dtype=bool)))
+        self.feedback.record(batch.agent_ids, actions, batch.positions, batch.queued)
+        return actions
+
+    def _extra(self, batch: AgentBatch) -> np.ndarray:
+        return extra_inputs(nest_features(batch.positions, batch.loads, batch.world_shape),
+                            self.feedback.features(batch.agent_ids, batch.positions, batch.queued))
 
     def outcome(self, batch: AgentBatch, team_rewards: np.ndarray, rows: np.ndarray, done: bool):
         """The observations after a step (``team_rewards``: every agent's; ``rows``: this
@@ -93,13 +100,12 @@ class HostActor:
         self.loads = loads
         if not done and len(self.actor) < self.cfg.rollout_steps:
             return None
-        extra = nest_features(batch.positions, batch.loads, batch.world_shape)
-        rollout = self.actor.rollout(batch.observations, extra, bootstrap=False)
+        rollout = self.actor.rollout(batch.observations, self._extra(batch), bootstrap=False)
         food, self.food = self.food, 0.0
         if not len(self.actor.learning):  # none of these agents learns: nothing to send
             return None
         return rollout_message(rollout, self.chunk_version, self.host, self.episode, food,
-                               extra=self.net.config.nest_input)
+                               extra=self.net.config.reads_extra)
 
 
 SWITCH_MODES = ("chunk", "episode")

@@ -49,14 +49,14 @@ def behaviour_outputs(net: ForMICNet, cfg: TrainConfig, rollout: dict[str, np.nd
                       state: tuple[torch.Tensor, torch.Tensor] | None = None):
     """What the actor's network said over a rollout, recomputed one step at a time as the
     host ran it (log-probabilities, values, bootstrap value, initial LSTM state; the sampling
-    masks and odometry inputs when the rollout lacks them). Returns (those arrays, the LSTM
+    masks and extra inputs when the rollout lacks them). Returns (those arrays, the LSTM
     state after the rollout's last step)."""
     steps, agents = rollout["actions"].shape
     sample_mask = rollout.get("sample_mask")
     if sample_mask is None:
         sample_mask = sampling_mask(cfg, rollout["train_mask"])
-    if net.config.nest_input and "extra" not in rollout:
-        raise ValueError("this network takes odometry inputs and the rollout carries none (Rollout.extra_inputs)")
+    if net.config.reads_extra and "extra" not in rollout:
+        raise ValueError("this network reads extra inputs and the rollout carries none (Rollout.extra_inputs)")
     extra_frames = rollout.get("extra", np.zeros((steps + 1, agents, N_EXTRA_INPUTS), np.float32))
     obs = torch.from_numpy(np.ascontiguousarray(rollout["obs"]))
     extra = torch.from_numpy(np.ascontiguousarray(extra_frames))

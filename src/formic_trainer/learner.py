@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from formic_agent.checkpoint import load_network, read_checkpoint, save_checkpoint
+from formic_agent.checkpoint import initialise_from, load_network, read_checkpoint, save_checkpoint
 
 from .algorithm import make_optimizer, set_learning_rate, training_network, update, update_data
 from .config import TrainConfig, plain
@@ -52,7 +52,7 @@ class Learner:
             self._resume(latest)
         elif cfg.init_weights:
             net, _ = load_network(cfg.init_weights)
-            self.net.load_state_dict(net.state_dict())
+            initialise_from(self.net, net)
             self.log(f"network initialised from {cfg.init_weights}")
         self.rng = learner_stream(cfg, self.updates)
         config_text = json.dumps(cfg.to_dict(), indent=2)

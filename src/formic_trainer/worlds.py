@@ -7,7 +7,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from formic_agent.network import nest_features
+from formic_agent.network import ActionFeedback, extra_inputs, nest_features
 from formic_agent.policy import AgentBatch
 from formic_runtime.registry import make_policy
 from formic_world import REWARD_PRESETS, Scenario, World, WorldConfig, generate_scenario
@@ -17,8 +17,8 @@ from .config import TrainConfig
 
 
 class Frame(NamedTuple):
-    """What agents (rows) see at one step: observations, odometry inputs, valid actions (the
-    environment's, the training filter's), queued or not."""
+    """What agents (rows) see at one step: observations, extra inputs (odometry, own action
+    feedback), valid actions (the environment's, the training filter's), queued or not."""
 
     obs: np.ndarray
     extra: np.ndarray
@@ -80,12 +80,14 @@ class MetaAgents:
         self.offsets = np.cumsum([0, *cfg.teams])
         self.n_agents = int(self.offsets[-1])
         self.experts: list = []  # one demonstrator per world (cfg.imitate)
+        self.feedback = ActionFeedback(self.n_agents)
         self._seen: list[tuple[np.ndarray, np.ndarray]] = []  # each world's last (observations, valid)
 
     def reset(self, episode: int) -> None:
         """New scenarios for every world; curriculum intensities from the global episode."""
         scenarios, self.highway, self.deposit = sample_scenarios(self.cfg, self.rng, episode)
         self.worlds = [World(scenario) for scenario in scenarios]
+        self.feedback.reset(self.n_agents)
         if self.cfg.imitate:
             self.experts = [make_policy(self.cfg.imitate) for _ in scenarios]
             for expert, scenario in zip(self.experts, scenarios):
@@ -95,8 +97,10 @@ class MetaAgents:
         """What every agent of every world sees now."""
         self._seen = [(w.observer.observe(), w.action_mask()) for w in self.worlds]
         obs, valid = zip(*self._seen)
+        nest = np.concatenate([nest_features(w.pos, w.loads, w.grid.shape) for w in self.worlds])
+        positions, queued = self._positions()
         return Frame(np.concatenate(obs),
-                     np.concatenate([nest_features(w.pos, w.loads, w.grid.shape) for w in self.worlds]),
+                     extra_inputs(nest, self.feedback.features(np.arange(self.n_agents), positions, queued)),
                      np.concatenate(valid),
                      np.concatenate([w.training_action_mask(v) for w, v in zip(self.worlds, valid)]),
                      np.concatenate([w.queued for w in self.worlds]))
@@ -112,7 +116,12 @@ class MetaAgents:
             wanted.append(near & who & ~w.queued)
         return np.concatenate(targets), np.concatenate(wanted)
 
+    def _positions(self) -> tuple[np.ndarray, np.ndarray]:
+        """Every agent's position and queue state (rows as in the frames)."""
+        return np.concatenate([w.pos for w in self.worlds]), np.concatenate([w.queued for w in self.worlds])
+
     def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        self.feedback.record(np.arange(self.n_agents), actions, *self._positions())
         rewards, food = [], []
         for w, lo, hi in zip(self.worlds, self.offsets[:-1], self.offsets[1:]):
             result = w.step(actions[lo:hi])
