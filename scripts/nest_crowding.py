@@ -1,0 +1,103 @@
+"""Where do carrying agents wait? Crowding at the nest, per policy (issue 11's 128-agent gap).
+
+The nest serves at most 4 agents at once; an agent that has unloaded stays on its dock (spot
+0) until it walks away (SPEC §1). For every step of every stored scenario this averages: the
+carrying agents that are free (not queued) within ``--radius`` cells (Chebyshev) of the nest
+centre, the agents in cache queues, the docks held by an agent that has finished (free, on
+spot 0) and, of the crowd's agents, the share whose action moved them. A policy that homes
+by dead reckoning and pheromones can reach the nest's neighbourhood and still miss the queue
+entries in a crowd; one that knows the nest direction (C-SAF-11) queues instead.
+
+    .venv/bin/python scripts/nest_crowding.py --model models/formic_paper.pt --teams 64,128 --count 4
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import click
+import numpy as np
+
+from formic_runtime.episode import run_episode
+from formic_runtime.threads import configure_threads
+from formic_world.geometry import nest_centre
+from formic_world.scenario_sets import load_set
+
+MEASURES = ("crowd", "in_cache_queues", "docks_held", "crowd_moving")
+
+
+class CrowdCounter:
+    """Per-step sums of the crowding measures; call after every step."""
+
+    def __init__(self, radius: int):
+        self.radius = radius
+        self.sums = dict.fromkeys(MEASURES, 0.0)
+        self.steps = 0
+        self.crowd_steps = 0
+        self.before: tuple[np.ndarray, np.ndarray] | None = None
+
+    def __call__(self, world) -> None:
+        centre = np.array(nest_centre(*world.grid.shape))  # between the 4 caches
+        near = np.abs(world.pos - centre).max(axis=1) <= self.radius
+        crowd = near & world.carrying & ~world.queued
+        cache_queued = world.queued & (world.queue_of < 4)
+        docks = world.queue_cells[:4, 0]
+        on_dock = world.agent_at[docks[:, 0], docks[:, 1]]
+        held = [a for a in on_dock if a >= 0 and not world.queued[a]]
+        if self.before is not None:
+            was_crowd, pos = self.before
+            self.sums["crowd_moving"] += float(((world.pos != pos).any(axis=1) & was_crowd).sum())
+            self.crowd_steps += int(was_crowd.sum())
+        self.sums["crowd"] += float(crowd.sum())
+        self.sums["in_cache_queues"] += float(cache_queued.sum())
+        self.sums["docks_held"] += float(len(held))
+        self.steps += 1
+        self.before = (crowd, world.pos.copy())
+
+    def table(self) -> dict[str, float]:
+        out = {key: self.sums[key] / max(self.steps, 1) for key in MEASURES if key != "crowd_moving"}
+        out["crowd_moving"] = self.sums["crowd_moving"] / max(self.crowd_steps, 1)
+        return out
+
+
+@click.command()
+@click.option("--policies", default="formic,csaf11", show_default=True)
+@click.option("--model", type=click.Path(exists=True, dir_okay=False), help="Checkpoint of the formic policy.")
+@click.option("--scenarios", "scenario_dir", default="eval/readme/scenarios", show_default=True,
+              type=click.Path(exists=True, file_okay=False))
+@click.option("--size", default=128, show_default=True)
+@click.option("--teams", default="64,128", show_default=True)
+@click.option("--count", default=4, show_default=True, help="Scenarios per team size (the first, by name).")
+@click.option("--steps", default=1024, show_default=True)
+@click.option("--radius", default=8, show_default=True, help="Cells from the nest centre that count as its crowd.")
+@click.option("--out", type=click.Path(dir_okay=False), help="Also write the table here as JSON.")
+def main(policies, model, scenario_dir, size, teams, count, steps, radius, out) -> None:
+    """Mean per step: carrying agents crowding the nest, agents queued at it, docks held."""
+    configure_threads()
+    results = []
+    for team in (int(t) for t in teams.split(",")):
+        prefix = f"s{size}_n{team}_o0_infinite_w0_"
+        files = sorted(Path(scenario_dir).glob(f"{prefix}*.json"))[:count]
+        if not files:
+            raise click.ClickException(f"no stored scenarios {prefix}* in {scenario_dir}")
+        for policy in policies.split(","):
+            rows = []
+            for path in files:
+                (_, scenario), = load_set(path)
+                counter = CrowdCounter(radius)
+                episode = run_episode(scenario, policy, model=model, steps=steps, on_step=counter)
+                rows.append({"food": episode.food, **counter.table()})
+            row = {"policy": policy, "agents": team, "scenarios": len(files),
+                   **{key: float(np.mean([r[key] for r in rows])) for key in rows[0]}}
+            results.append(row)
+            click.echo(f"{policy:8s} {team:4d} agents  food {row['food']:6.1f}  crowd {row['crowd']:5.1f}  "
+                       f"in cache queues {row['in_cache_queues']:4.1f}  docks held {row['docks_held']:.2f}  "
+                       f"crowd moving {row['crowd_moving']:.0%}")
+    if out:
+        Path(out).write_text(json.dumps({"radius": radius, "steps": steps, "model": model, "results": results},
+                                        indent=1))
+
+
+if __name__ == "__main__":
+    main()
