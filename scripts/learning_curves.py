@@ -4,7 +4,7 @@ Stages are drawn one after the other on a common episode axis (a stage's episode
 where the previous one's ended), so a model trained in stages shows as one curve:
 
     .venv/bin/python scripts/learning_curves.py models/training/paper-ref models/training/paper-crowd \
-        --out models/formic_paper_curves.png
+        models/training/paper-feedback --until paper-crowd=328 --out models/formic_paper_curves.png
 
 With ``--overlay`` every run starts at episode 0 and the food panel shows each run's mean over
 its training worlds: runs of one recipe with one switch changed (the Table I ablations) side by side.
@@ -51,13 +51,21 @@ def mean_over_worlds(series: dict[str, list[tuple[int, float]]]) -> list[tuple[i
 @click.option("--out", required=True, type=click.Path(dir_okay=False))
 @click.option("--smooth", default=10, show_default=True, help="Moving-average window (logged points).")
 @click.option("--overlay", is_flag=True, help="Draw every run from episode 0 (comparison), not one after the other (stages).")
-def main(run_dirs: tuple[Path, ...], out: str, smooth: int, overlay: bool) -> None:
+@click.option("--until", "untils", multiple=True, metavar="RUN=EPISODE",
+              help="Draw run RUN (its directory's name) only up to EPISODE: the part of a stage a model used.")
+def main(run_dirs: tuple[Path, ...], out: str, smooth: int, overlay: bool, untils: tuple[str, ...]) -> None:
     """Draw food per world, entropy, valid-action accuracy and the filter/highway schedules."""
+    try:
+        until = {name: int(episode) for name, episode in (item.split("=") for item in untils)}
+    except ValueError as exc:
+        raise click.BadParameter("expected RUN=EPISODE", param_hint="--until") from exc
     panels = ((FOOD_MEAN,), *PANELS[1:]) if overlay else PANELS
     fig, axes = plt.subplots(len(panels), 1, figsize=(9, 11), sharex=True)
     offset = 0
     for run_dir in run_dirs:
         series = read_scalars(run_dir)
+        if run_dir.name in until:
+            series = {tag: [(s, v) for s, v in points if s <= until[run_dir.name]] for tag, points in series.items()}
         if overlay:
             series[FOOD_MEAN] = mean_over_worlds(series)
         last = 0

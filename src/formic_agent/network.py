@@ -85,7 +85,9 @@ class ActionFeedback:
         self.queued = np.zeros(n_agents, dtype=bool)
 
     def forget(self, agent_ids: np.ndarray) -> None:
-        self.action[np.asarray(agent_ids, dtype=np.int64)] = -1
+        ids = np.asarray(agent_ids, dtype=np.int64)
+        self._ensure_capacity(ids)
+        self.action[ids] = -1
 
     def _ensure_capacity(self, agent_ids: np.ndarray) -> None:
         grow = int(agent_ids.max(initial=-1)) + 1 - len(self.action)
