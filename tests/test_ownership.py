@@ -83,3 +83,63 @@ def test_two_nodes_claiming_one_agent(tmp_path):
         assert sorted(refused) == [False, True], "exactly one of them was refused"
     finally:
         spawner.reap_all()
+
+
+class GraphNode:
+    """The little of an rclpy node the world's Ownership uses, with a graph the test sets."""
+
+    def __init__(self):
+        self.names: list[tuple[str, str]] = []
+        self.logged: list[str] = []
+
+    def get_namespace(self):
+        return "/formic"
+
+    def get_node_names_and_namespaces(self):
+        return self.names
+
+    def get_logger(self):
+        node = self
+
+        class Logger:
+            def info(self, text):
+                node.logged.append(text)
+
+            error = warning = info
+        return Logger()
+
+    def create_publisher(self, *args):
+        class Publisher:
+            def publish(self, msg):
+                pass
+        return Publisher()
+
+    def create_timer(self, *args):
+        return None
+
+
+def test_a_claim_under_the_first_owners_name_waits_before_it_takes_over(monkeypatch):
+    """Two nodes named agent_2: the second's claim arrives late and the graph shows one agent_2
+    (the other not discovered yet). It is refused until it is 2 s old; then, if the graph still
+    shows one agent_2 (a restart), it takes over; if two, the first owner stays."""
+    import json
+
+    from std_msgs.msg import String
+
+    from formic_ros import ownership
+
+    for graph_after, owner_after in ((1, "second"), (2, "first")):
+        clock = [100.0]
+        monkeypatch.setattr(ownership.time, "monotonic", lambda: clock[0])
+        node = GraphNode()
+        world = ownership.Ownership(node, offer_batch=None, subscribe=lambda *args: None)
+        node.names = [("agent_2", "/formic")]
+        world._on_claim(String(data=json.dumps({"owner": "/formic/agent_2", "token": "first", "agents": [2]})))
+        clock[0] += 3.0  # the first claim is old, the second arrives now
+        world._on_claim(String(data=json.dumps({"owner": "/formic/agent_2", "token": "second", "agents": [2]})))
+        assert world.owner_of[2] == "first" and "second" in world.refused
+        assert any("claim refused, first owner kept" in line for line in node.logged)
+        clock[0] += 2.5
+        node.names = [("agent_2", "/formic")] * graph_after
+        world._recheck()
+        assert world.owner_of[2] == owner_after

@@ -130,12 +130,18 @@ class Ownership:
         self.trusted.clear()  # owners may change here: every source is checked again
         self.batch_agents.clear()
         taken = []
+        now = time.monotonic()
         for a in claim["agents"]:
             first = self.claims.get(self.owner_of.get(a, ""))
             if first is None or first["token"] == claim["token"]:
                 self.owner_of[a] = claim["token"]
-            elif (self._alive(first["owner"]) > (first["owner"] == claim["owner"])
-                  or time.monotonic() - first["received_at"] < TAKEOVER_GRACE_S):  # or not discovered yet
+                continue
+            same_name = first["owner"] == claim["owner"]
+            # A young claim's node may not be in the graph yet. Under one name the graph cannot tell
+            # a restart from a second node it has not discovered, so the newcomer waits too.
+            young = now - first["received_at"] < TAKEOVER_GRACE_S or (
+                same_name and now - claim["received_at"] < TAKEOVER_GRACE_S)
+            if self._alive(first["owner"]) > same_name or young:
                 taken.append(a)
             else:  # the first owner has left the graph: a restarted host takes over
                 self.node.get_logger().info(f"agent {a}: {first['owner']} has left, {claim['owner']} drives it now")
