@@ -65,9 +65,9 @@ def agent_node_in_this_process(spawner, monkeypatch, agent: int):
         rclpy.try_shutdown(context=context)
 
 
-def sim_result(steps: int, policy: str) -> tuple[float, str]:
+def sim_result(steps: int, policy: str, model: str | None = None) -> tuple[float, str]:
     scenario = generate_scenario(WorldConfig(height=24, width=24, n_agents=8, episode_steps=steps), 0)
-    result = run_episode(scenario, policy)
+    result = run_episode(scenario, policy, model=model)
     return result.food, result.world.state_digest()
 
 
@@ -145,14 +145,17 @@ def test_action_inbox_validates_every_entry():
 
 
 # ------------------------------------------------------------------------ real processes
-@pytest.mark.parametrize("transport,policy", [("batched", "random"), ("per-agent", "random:0-3,csaf11:4-7")])
-def test_run_across_processes_equals_sim(spawner, transport, policy):
+@pytest.mark.parametrize("transport,policy,model", [
+    ("batched", "random", None), ("per-agent", "random:0-3,csaf11:4-7", None),
+    ("per-agent", "formic", str(ROOT / "models" / "formic_paper.pt")),  # its LSTM reads its own action feedback
+])
+def test_run_across_processes_equals_sim(spawner, transport, policy, model):
     run = spawner.formic("run", "run", *SMALL, "--steps", "50", "--policy", policy, "--transport", transport,
                          "--hosts", "2", "--domain-id", str(spawner.domain_id), "--deadline-ms", "5000",
-                         "--json", limit_s=120)
+                         "--json", *(("--model", model) if model else ()), limit_s=120)
     assert run.wait() == 0, run.output()[-3000:]
     summary = run.json_line()
-    food, digest = sim_result(50, policy)
+    food, digest = sim_result(50, policy, model)
     assert food > 0
     assert (summary["food"], summary["state_digest"]) == (food, digest)
     assert summary["missed_actions"] == 0 and summary["rejected_actions"] == {}
