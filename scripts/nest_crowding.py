@@ -22,7 +22,8 @@ import numpy as np
 from formic_runtime.episode import run_episode
 from formic_runtime.threads import configure_threads
 from formic_world.geometry import nest_centre
-from formic_world.scenario_sets import load_set
+from formic_world.scenario import ScenarioError
+from formic_world.scenario_sets import first_stored
 
 MEASURES = ("crowd", "in_cache_queues", "docks_held", "crowd_moving")
 
@@ -77,18 +78,17 @@ def main(policies, model, scenario_dir, size, teams, count, steps, radius, out) 
     configure_threads()
     results = []
     for team in (int(t) for t in teams.split(",")):
-        prefix = f"s{size}_n{team}_o0_infinite_w0_"
-        files = sorted(Path(scenario_dir).glob(f"{prefix}*.json"))[:count]
-        if not files:
-            raise click.ClickException(f"no stored scenarios {prefix}* in {scenario_dir}")
+        try:
+            scenarios = first_stored(Path(scenario_dir), size, team, count)
+        except ScenarioError as exc:
+            raise click.ClickException(str(exc)) from exc
         for policy in policies.split(","):
             rows = []
-            for path in files:
-                (_, scenario), = load_set(path)
+            for scenario in scenarios:
                 counter = CrowdCounter(radius)
                 episode = run_episode(scenario, policy, model=model, steps=steps, on_step=counter)
                 rows.append({"food": episode.food, **counter.table()})
-            row = {"policy": policy, "agents": team, "scenarios": len(files),
+            row = {"policy": policy, "agents": team, "scenarios": len(scenarios),
                    **{key: float(np.mean([r[key] for r in rows])) for key in rows[0]}}
             results.append(row)
             click.echo(f"{policy:8s} {team:4d} agents  food {row['food']:6.1f}  crowd {row['crowd']:5.1f}  "

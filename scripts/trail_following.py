@@ -26,7 +26,8 @@ import numpy as np
 
 from formic_runtime.episode import run_episode
 from formic_runtime.threads import configure_threads
-from formic_world.scenario_sets import load_set
+from formic_world.scenario import ScenarioError
+from formic_world.scenario_sets import first_stored
 
 KINDS = ("up", "down", "off", "level")
 
@@ -92,19 +93,18 @@ def main(policies, model, scenario_dir, size, teams, count, steps, threshold, ou
     configure_threads()
     results = []
     for team in (int(t) for t in teams.split(",")):
-        prefix = f"s{size}_n{team}_o0_infinite_w0_"
-        files = sorted(Path(scenario_dir).glob(f"{prefix}*.json"))[:count]
-        if not files:
-            raise click.ClickException(f"no stored scenarios {prefix}* in {scenario_dir}")
+        try:
+            scenarios = first_stored(Path(scenario_dir), size, team, count)
+        except ScenarioError as exc:
+            raise click.ClickException(str(exc)) from exc
         for policy in policies.split(","):
             counter = TrailCounter(threshold)
             food = []
-            for path in files:
-                (_, scenario), = load_set(path)
+            for scenario in scenarios:
                 counter.before = None
                 episode = run_episode(scenario, policy, model=model, steps=steps, on_step=counter)
                 food.append(episode.food)
-            row = {"policy": policy, "agents": team, "scenarios": len(files), "food": float(np.mean(food)),
+            row = {"policy": policy, "agents": team, "scenarios": len(scenarios), "food": float(np.mean(food)),
                    **counter.table()}
             results.append(row)
             click.echo(f"{policy:8s} {team:4d} agents  food {row['food']:6.1f}  " + "  ".join(

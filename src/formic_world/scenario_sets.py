@@ -32,6 +32,16 @@ def load_set(path: Path) -> list[tuple[Path, Scenario]]:
     return [(f, Scenario.load(f)) for f in files]
 
 
+def first_stored(directory: Path, size: int, agents: int, count: int) -> list[Scenario]:
+    """The first ``count`` stored scenarios (by name) of one 1024-step-protocol setting: a
+    ``size``-sided world, ``agents`` agents, infinite resources, no obstacles, no wipeouts."""
+    prefix = f"s{size}_n{agents}_o0_infinite_w0_"
+    files = sorted(Path(directory).glob(f"{prefix}*.json"))[:count]
+    if not files:
+        raise ScenarioError(f"no stored scenarios {prefix}* in {directory}")
+    return [Scenario.load(f) for f in files]
+
+
 def describe(scenario: Scenario) -> dict:
     cfg = scenario.config
     return {
