@@ -52,6 +52,32 @@ def test_a_once_host_whose_world_leaves_mid_episode_exits_non_zero(spawner):
     assert "the world left at step" in host.output() and "before the episode ended" in host.output()
 
 
+def test_a_second_world_in_the_same_namespace_and_domain_is_refused_and_the_first_goes_on(spawner):
+    """Two worlds on one domain and namespace would answer each other's agents: the second
+    (`formic world` or a whole `formic run`) stops at once, before any agent host starts; another
+    namespace is free, and a SIGKILLed world's place is free at once (no 20 s DDS lease)."""
+    first = spawner.formic("first", "world", *SMALL, "--steps", "5", "--startup-timeout", "600", *domain(spawner))
+    first.wait_for_text("episode:", timeout=60)
+    refusal = f"another world already serves namespace /formic on ROS domain {spawner.domain_id} on this machine " \
+              f"(process {first.pid})"
+    second = spawner.formic("second", "world", *SMALL, "--steps", "5", *domain(spawner))
+    assert second.wait(timeout=30) == 1
+    assert refusal in second.output(), second.output()[-2000:]
+    run = spawner.formic("run", "run", *SMALL, "--steps", "5", "--policy", "random", *domain(spawner))
+    assert run.wait(timeout=30) != 0
+    assert refusal in run.output() and "up: agents" not in run.output(), run.output()[-2000:]
+    elsewhere = spawner.formic("elsewhere", "world", *SMALL, "--steps", "3", "--namespace", "/other",
+                               "--startup-timeout", "1", "--allow-empty", "--json", *domain(spawner))
+    assert elsewhere.wait(timeout=30) == 0, elsewhere.output()[-2000:]
+    assert first.alive() and "every agent answered" not in first.output()
+    first.popen.send_signal(signal.SIGKILL)
+    first.wait(timeout=5)
+    after = spawner.formic("after", "world", *SMALL, "--steps", "3", "--startup-timeout", "1", "--allow-empty",
+                           "--json", *domain(spawner))
+    assert after.wait(timeout=30) == 0, after.output()[-2000:]
+    assert after.json_line()["missed_actions"] == 2 * 3
+
+
 @pytest.mark.parametrize("state", ["waiting", "stepping"])
 def test_every_node_command_exits_soon_after_sigterm(spawner, tmp_path, state):
     """waiting: each command alone in a domain of its own (the world for its agents, the rest

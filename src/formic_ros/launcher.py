@@ -30,6 +30,7 @@ from . import qos
 from .env import check_domain_id, ros_environment, warn_if_exposed
 from .node_process import node_spec
 from .processes import RECORDER_GRACE_S, Children, JsonLines, watch
+from .world_lock import check_world_free
 from .world_node import WorldNodeOptions
 
 if TYPE_CHECKING:
@@ -95,6 +96,7 @@ def launch(opts: RunOptions) -> dict:
     if "planner" in team.names and opts.external:
         raise ValueError("the planner commands every agent; it cannot leave some to --external")
     check_domain_id(opts.domain_id)
+    check_world_free(opts.namespace, opts.domain_id)
     label = opts.policy + (f",external:{','.join(map(str, opts.external))}" if opts.external else "")
     started = time.monotonic()
     warn_if_exposed()
@@ -178,6 +180,7 @@ def launch_training(opts: TrainRunOptions) -> dict:
     cfg = opts.config
     require_one_world(cfg)
     check_domain_id(opts.domain_id)
+    check_world_free(opts.namespace, opts.domain_id)
     start = first_episode(opts.run_dir, opts.fresh)
     started = time.monotonic()
     warn_if_exposed()

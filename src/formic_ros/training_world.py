@@ -36,12 +36,13 @@ def serve_training_world(
     from formic_trainer.worlds import sample_scenarios, scenario_rng
 
     from .env import ros_session
+    from .world_lock import world_lock
 
     require_one_world(cfg)
     options = replace(options, training_masks=True, policy_label=options.policy_label or "formic:learning")
     rng = scenario_rng(cfg, first_episode)
     summaries = []
-    with ros_session(domain_id) as executor:
+    with world_lock(options.namespace, domain_id), ros_session(domain_id) as executor:
         node = None
         for episode in range(first_episode, first_episode + episodes):
             (scenario,), highway, deposit = sample_scenarios(cfg, rng, episode)

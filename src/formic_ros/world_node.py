@@ -273,8 +273,9 @@ def serve_world(scenario: Scenario, options: WorldNodeOptions, domain_id: int | 
     soon as the episode ends; with ``stay`` the node then keeps serving the latched scenario
     and summary until interrupted."""
     from .env import ros_session
+    from .world_lock import world_lock
 
-    with ros_session(domain_id) as executor:
+    with world_lock(options.namespace, domain_id), ros_session(domain_id) as executor:
         node = WorldNode(scenario, options)
         executor.add_node(node)
         try:
