@@ -47,6 +47,25 @@ def mean_over_worlds(series: dict[str, list[tuple[int, float]]]) -> list[tuple[i
     return [(step, float(np.mean([w[step] for w in worlds]))) for step in common]
 
 
+def stages(run_dirs: tuple[Path, ...], until: dict[str, int], overlay: bool = False
+           ) -> list[tuple[str, int, dict[str, list[tuple[int, float]]]]]:
+    """Each run's name, the episode its curve starts at and its series (cut at ``until[name]``):
+    one after the other (a stage starts at the last episode the previous one drew), or all at 0
+    with ``overlay`` (plus the food mean over worlds)."""
+    out, offset = [], 0
+    for run_dir in run_dirs:
+        series = read_scalars(run_dir)
+        if run_dir.name in until:
+            series = {tag: [(s, v) for s, v in points if s <= until[run_dir.name]] for tag, points in series.items()}
+        if overlay:
+            series[FOOD_MEAN] = mean_over_worlds(series)
+        out.append((run_dir.name, offset, series))
+        drawn = [points[-1][0] for tags in PANELS for tag in tags if (points := series.get(tag))]
+        if not overlay:
+            offset += max(drawn, default=0)
+    return out
+
+
 @click.command()
 @click.argument("run_dirs", nargs=-1, required=True, type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.option("--out", required=True, type=click.Path(dir_okay=False))
@@ -62,14 +81,7 @@ def main(run_dirs: tuple[Path, ...], out: str, smooth: int, overlay: bool, until
         raise click.BadParameter("expected RUN=EPISODE", param_hint="--until") from exc
     panels = ((FOOD_MEAN,), *PANELS[1:]) if overlay else PANELS
     fig, axes = plt.subplots(len(panels), 1, figsize=(9, 11), sharex=True)
-    offset = 0
-    for run_dir in run_dirs:
-        series = read_scalars(run_dir)
-        if run_dir.name in until:
-            series = {tag: [(s, v) for s, v in points if s <= until[run_dir.name]] for tag, points in series.items()}
-        if overlay:
-            series[FOOD_MEAN] = mean_over_worlds(series)
-        last = 0
+    for name, offset, series in stages(run_dirs, until, overlay):
         for ax, tags in zip(axes, panels):
             for tag in tags:
                 points = series.get(tag, [])
@@ -81,15 +93,13 @@ def main(run_dirs: tuple[Path, ...], out: str, smooth: int, overlay: bool, until
                 totals = np.cumsum([0.0, *values])
                 starts = np.maximum(np.arange(len(values)) - window + 1, 0)
                 smoothed = (totals[1:] - totals[starts]) / (np.arange(len(values)) + 1 - starts)
-                ax.plot(steps, smoothed, label=f"{run_dir.name}: {tag.split('/')[-1]}")
-                last = max(last, points[-1][0])
-        if not overlay:
-            for ax in axes:
+                ax.plot(steps, smoothed, label=f"{name}: {tag.split('/')[-1]}")
+            if not overlay:
                 ax.axvline(offset, color="grey", linewidth=0.5)
-            offset += last
     for ax, tags in zip(axes, panels):
         ax.set_ylabel(", ".join(t.split("/")[-1] for t in tags), fontsize=8)
-        ax.legend(fontsize=6, ncol=2)
+        if ax.get_legend_handles_labels()[0]:  # a panel no run logged stays without a legend
+            ax.legend(fontsize=6, ncol=2)
     axes[-1].set_xlabel("training episode" if overlay else "training episode (all stages)")
     fig.tight_layout()
     fig.savefig(out, dpi=110)
