@@ -71,13 +71,15 @@ def test_two_nodes_claiming_one_agent(tmp_path):
                                 limit_s=120)
         for node in (first, second):  # both claims are out (latched) before the world starts
             node.wait_for_text("driving agent 2", timeout=60)
-        run = spawner.formic("run", "run", "--agents", "8", "--size", "24", "--seed", "0", "--steps", "40",
+        # Long enough (~5 s) that the world surely hears both claims: a world that starts in 0.6 s and
+        # plays 40 steps in 0.2 s had ended before the second claim was discovered (seen under load).
+        run = spawner.formic("run", "run", "--agents", "8", "--size", "24", "--seed", "0", "--steps", "1000",
                              "--policy", "random", "--external", "2", "--deadline-ms", "5000", "--json",
                              "--domain-id", str(spawner.domain_id), limit_s=120)
         assert run.wait() == 0, run.output()[-3000:]
         time.sleep(1)  # the refused one idles (it may miss the end): reaped below
         summary = run.json_line()
-        assert summary["missed_actions"] == 0 and summary["last_answered_step"] == [39] * 8
+        assert summary["missed_actions"] == 0 and summary["last_answered_step"] == [999] * 8
         assert "claim refused, first owner kept" in run.output()
         refused = ["is driven by another node" in p.output() for p in (first, second)]
         assert sorted(refused) == [False, True], "exactly one of them was refused"
