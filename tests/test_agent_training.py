@@ -360,3 +360,41 @@ def test_widening_a_network_with_feedback_inputs_keeps_what_it_does():
         initialise_from(ForMICNet(NETWORK_PRESETS["cpu"]), source)
     with pytest.raises(CheckpointError, match="only extra inputs may be added"):
         initialise_from(ForMICNet(NETWORK_PRESETS["paper"]), ForMICNet(NETWORK_PRESETS["cpu"]))
+
+
+def test_the_weight_average_follows_each_update_and_survives_a_resume(tmp_path):
+    """weight_average=d: after each update averaged = d*averaged + (1-d)*weights, written as
+    averaged.pt (a model) at each checkpoint and restored on resume."""
+    from formic_trainer.learner import Learner
+
+    cfg = make_config("cpu", **TINY, weight_average=0.75)
+    trainer = Trainer(cfg, tmp_path, resume=False, log=lambda *_: None)
+    expected = {k: v.clone() for k, v in trainer.net.state_dict().items()}  # it starts at the weights
+    learner = trainer.learner
+    original = learner.learn
+
+    def learn_and_track(*args, **kwargs):
+        stats = original(*args, **kwargs)
+        for key, value in learner.net.state_dict().items():
+            expected[key] = 0.75 * expected[key] + 0.25 * value if value.is_floating_point() else value.clone()
+        return stats
+
+    learner.learn = learn_and_track
+    trainer.train(episodes=2)
+    assert learner.updates >= 2
+    for key, value in learner.averaged.state_dict().items():
+        torch.testing.assert_close(value, expected[key])
+    assert not all(torch.equal(value, learner.net.state_dict()[key])
+                   for key, value in learner.averaged.state_dict().items() if value.is_floating_point())
+    model, payload = load_network(tmp_path / "averaged.pt")  # what --model loads
+    assert payload["weight_average"] == 0.75 and payload["progress"]["updates"] == learner.updates
+    for key, value in model.state_dict().items():
+        assert torch.equal(value, learner.averaged.state_dict()[key])
+    resumed = Learner(cfg, tmp_path, resume=True, log=lambda *_: None)
+    for key, value in resumed.averaged.state_dict().items():
+        assert torch.equal(value, learner.averaged.state_dict()[key])
+    off = Learner(make_config("cpu", **TINY), tmp_path / "off", resume=False, log=lambda *_: None)
+    off.save()
+    assert off.averaged is None and not (tmp_path / "off" / "averaged.pt").exists()
+    with pytest.raises(ValueError, match="weight_average"):
+        make_config("cpu", weight_average=1.0)

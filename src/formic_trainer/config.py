@@ -64,6 +64,12 @@ class TrainConfig:
     filter_anneal_end: int = 0
     filter_final: float = 1.0
     init_weights: str = ""  # start the network from this checkpoint (warm start / fine-tune)
+    # A moving average of the weights kept beside them (beyond the paper): after each update
+    # averaged = d * averaged + (1 - d) * weights, d = weight_average (0 = off; 0.99 spans about
+    # the last 100 updates). Written at every checkpoint as ``averaged.pt`` (a model for --model)
+    # and carried in ``latest.pt``. At 128 agents single checkpoints eight updates apart swing
+    # between 316 and 742 food (models/formic_paper.md), so the policy a run ends with is a lottery.
+    weight_average: float = 0.0
     optimizer: Literal["nadam", "adam"] = "nadam"
     lr: float = 5e-6
     # Learning-rate warm-up over the first N updates of a run (beyond the paper). A fine-tune
@@ -109,6 +115,8 @@ class TrainConfig:
                 raise ValueError(f"{name} must be one of {', '.join(map(repr, allowed))}, not {getattr(self, name)!r}")
         if self.network not in NETWORK_PRESETS:
             raise ValueError(f"network must be one of {', '.join(map(repr, NETWORK_PRESETS))}, not {self.network!r}")
+        if not 0.0 <= self.weight_average < 1.0:
+            raise ValueError(f"weight_average is a decay in [0, 1) (0 = off), not {self.weight_average}")
         if len(self.world_sizes) < len(self.teams):
             raise ValueError(f"{len(self.teams)} teams but {len(self.world_sizes)} world_sizes: give one side "
                              "range per team (--set world_sizes=40-96,64-128)")

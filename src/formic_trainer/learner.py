@@ -1,10 +1,12 @@
 """The learner: network, optimiser, counters (the weights version is the updates so far),
-its own random stream (minibatch permutations), checkpoints, resume and the TensorBoard log.
+its own random stream (minibatch permutations), the optional moving average of the weights
+(``weight_average``), checkpoints, resume and the TensorBoard log.
 :meth:`Learner.learn` makes one update from an actor's rollout. ``formic train`` and the ROS
 trainer node (``formic train-ros``) both drive it."""
 
 from __future__ import annotations
 
+import copy
 import json
 from collections.abc import Callable
 from pathlib import Path
@@ -18,7 +20,7 @@ from .algorithm import make_optimizer, set_learning_rate, training_network, upda
 from .config import TrainConfig, plain
 
 # settings a run may change when it resumes
-RESUMABLE = frozenset({"total_episodes", "threads", "checkpoint_every", "init_weights"})
+RESUMABLE = frozenset({"total_episodes", "threads", "checkpoint_every", "init_weights", "weight_average"})
 # the counters a checkpoint carries; "seconds" is the learner's wall clock, "cpu_seconds" this
 # process's CPU time over the same spans (what a CPU-hour budget counts: pauses and a busy
 # machine do not inflate it). Checkpoints from before cpu_seconds existed resume with their wall
@@ -47,6 +49,7 @@ class Learner:
         self.env_steps = 0
         self.seconds = 0.0
         self.cpu_seconds = 0.0
+        self.averaged = None  # the moving average of the weights (a network), when weight_average > 0
         latest = self.run_dir / "latest.pt"
         if resume and latest.exists():
             self._resume(latest)
@@ -54,6 +57,8 @@ class Learner:
             net, _ = load_network(cfg.init_weights)
             initialise_from(self.net, net)
             self.log(f"network initialised from {cfg.init_weights}")
+        if cfg.weight_average and self.averaged is None:  # a new run: the average starts at the weights
+            self.averaged = copy.deepcopy(self.net).requires_grad_(False)
         self.rng = learner_stream(cfg, self.updates)
         config_text = json.dumps(cfg.to_dict(), indent=2)
         (self.run_dir / "config.json").write_text(config_text)
@@ -79,6 +84,10 @@ class Learner:
             )
         self.net.load_state_dict(payload["state_dict"])
         self.optimizer.load_state_dict(payload["optimizer"])
+        if self.cfg.weight_average:
+            self.averaged = copy.deepcopy(self.net).requires_grad_(False)
+            if "averaged_state_dict" in payload:  # else (switched on at this resume) it starts at the weights
+                self.averaged.load_state_dict(payload["averaged_state_dict"])
         progress = {"cpu_seconds": payload["progress"]["seconds"]} | payload["progress"]
         for key in PROGRESS:
             setattr(self, key, progress[key])
@@ -89,6 +98,14 @@ class Learner:
         its learning agents')."""
         set_learning_rate(self.optimizer, self.cfg, self.updates)
         stats = update(self.net, self.optimizer, self.cfg, update_data(self.cfg, rollout), self.rng)
+        if self.averaged is not None:
+            with torch.no_grad():
+                weights = self.net.state_dict()
+                for name, value in self.averaged.state_dict().items():
+                    if value.is_floating_point():
+                        value.lerp_(weights[name], 1.0 - self.cfg.weight_average)
+                    else:
+                        value.copy_(weights[name])
         self.updates += 1
         self.env_steps += int(rollout["actions"].size if env_steps is None else env_steps)
         return stats
@@ -114,11 +131,20 @@ class Learner:
             self.writer.add_scalar(f"{prefix}/{key}", value, step)
 
     def save(self, name: str = "latest.pt") -> None:
+        """The training state as ``name``; with a weight average also ``averaged.pt`` (written
+        first: a crash between the two leaves an average no newer than ``latest.pt``)."""
+        progress = {key: getattr(self, key) for key in PROGRESS}
+        extra = {}
+        if self.averaged is not None:
+            save_checkpoint(self.run_dir / "averaged.pt", self.averaged, progress=progress,
+                            weight_average=self.cfg.weight_average)
+            extra["averaged_state_dict"] = self.averaged.state_dict()
         save_checkpoint(
             self.run_dir / name, self.net,
             optimizer=self.optimizer.state_dict(),
             train_config=self.cfg.to_dict(),
-            progress={key: getattr(self, key) for key in PROGRESS},
+            progress=progress,
+            **extra,
         )
 
     def close(self) -> None:
