@@ -90,11 +90,13 @@ def world_lock(namespace: str, domain_id: int | None = None) -> Iterator[Path]:
     finally:
         os.close(fd)  # closing releases the lock
 
+
 def check_world_free(namespace: str, domain_id: int | None = None) -> None:
     """:class:`WorldAlreadyServed` now, before a launcher starts any process, when another world
     serves there (the world it then starts takes the lock itself)."""
-    fd = _open(lock_path(namespace, effective_domain(domain_id)))[0]
+    domain = effective_domain(domain_id)
+    fd = _open(lock_path(namespace, domain))[0]
     try:
-        _lock_or_raise(fd, namespace, effective_domain(domain_id))
+        _lock_or_raise(fd, namespace, domain)
     finally:
         os.close(fd)

@@ -131,21 +131,20 @@ class Learner:
             self.writer.add_scalar(f"{prefix}/{key}", value, step)
 
     def save(self, name: str = "latest.pt") -> None:
-        """The training state as ``name``; with a weight average also ``averaged.pt`` (written
-        first: a crash between the two leaves an average no newer than ``latest.pt``)."""
+        """The training state as ``name``; with a weight average also ``averaged.pt``, written
+        after it (``name`` carries the average too, so a crash between the two loses nothing)."""
         progress = {key: getattr(self, key) for key in PROGRESS}
-        extra = {}
-        if self.averaged is not None:
-            save_checkpoint(self.run_dir / "averaged.pt", self.averaged, progress=progress,
-                            weight_average=self.cfg.weight_average)
-            extra["averaged_state_dict"] = self.averaged.state_dict()
+        averaged = {} if self.averaged is None else {"averaged_state_dict": self.averaged.state_dict()}
         save_checkpoint(
             self.run_dir / name, self.net,
             optimizer=self.optimizer.state_dict(),
             train_config=self.cfg.to_dict(),
             progress=progress,
-            **extra,
+            **averaged,
         )
+        if self.averaged is not None:
+            save_checkpoint(self.run_dir / "averaged.pt", self.averaged, progress=progress,
+                            weight_average=self.cfg.weight_average)
 
     def close(self) -> None:
         self.save()
