@@ -25,7 +25,8 @@ pytest.importorskip("formic_interfaces.msg")
 
 from formic_record.bag import BagWriter  # noqa: E402
 from formic_record.reading import KEPT_SUFFIX, Recording, repair_recording  # noqa: E402
-from formic_record.replay import read_episodes, render_recording, resimulate, verify_recording  # noqa: E402
+from formic_record.replay import read_episodes, render_recording, resimulate  # noqa: E402
+from formic_record.verify import verify_recording  # noqa: E402
 
 pytestmark = pytest.mark.filterwarnings("ignore:module 'sre_:DeprecationWarning")
 

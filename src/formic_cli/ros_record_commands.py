@@ -113,7 +113,7 @@ def replay_command(recording, verify, republish, repair, live_view, view_port, v
                            "kept": str(report.kept) if report.kept else None, "note": report.note,
                            "corrupted": report.corrupted, "dropped": report.dropped}, report.note)
         elif verify:
-            from formic_record.replay import verify_recording
+            from formic_record.verify import verify_recording
 
             report = verify_recording(recording)
             emit(as_json, report.to_dict(), report.summary())

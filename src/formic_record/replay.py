@@ -106,14 +106,6 @@ def difference_from(world: World, state: RecordedState) -> str | None:
     return None
 
 
-def verify_recording(path: str | os.PathLike):
-    """Every CRC, then every message the world published against the re-simulation
-    (:func:`formic_record.verify.verify_recording`)."""
-    from .verify import verify_recording as verify
-
-    return verify(path)
-
-
 def _described_episodes(path: str | os.PathLike, otherwise: str) -> list[RecordedEpisode]:
     episodes = [e for e in read_episodes(Recording(path)) if e.scenario is not None]
     if not episodes:
