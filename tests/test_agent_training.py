@@ -398,3 +398,15 @@ def test_the_weight_average_follows_each_update_and_survives_a_resume(tmp_path):
     assert off.averaged is None and not (tmp_path / "off" / "averaged.pt").exists()
     with pytest.raises(ValueError, match="weight_average"):
         make_config("cpu", weight_average=1.0)
+
+
+def test_fewer_learning_agents_than_minibatches_still_train(tmp_path):
+    """Two learners and four minibatches: each minibatch holds one learner's sequence (the split
+    used to leave empty minibatches, which crashed the network)."""
+    cfg = make_config("cpu", **TINY, learning_agents=2)
+    assert cfg.minibatches > 2
+    trainer = Trainer(cfg, tmp_path, resume=False, log=lambda *_: None)
+    before = {k: v.clone() for k, v in trainer.net.state_dict().items()}
+    trainer.train(episodes=1)
+    assert trainer.updates == 2
+    assert any(not torch.equal(before[k], v) for k, v in trainer.net.state_dict().items())

@@ -136,7 +136,7 @@ def update(net: ForMICNet, optimizer: torch.optim.Optimizer, cfg: TrainConfig, d
     stats: dict[str, list[float]] = {}
     for _ in range(cfg.epochs):
         order = rng.permutation(n_seq)
-        for chunk in np.array_split(order, cfg.minibatches):
+        for chunk in np.array_split(order, min(cfg.minibatches, n_seq)):  # fewer learners than minibatches: one each
             idx = torch.from_numpy(chunk)
             batch = {k: v[:, idx] for k, v in tensors.items()}
             terms = policy_losses(net, cfg, batch)
