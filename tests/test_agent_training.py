@@ -95,6 +95,25 @@ def test_trainer_resumes_exactly_where_its_checkpoint_left(tmp_path):
         Trainer(make_config("cpu", **{**TINY, "lr": 1e-3}), tmp_path, resume=True, log=lambda *_: None)
 
 
+@pytest.mark.parametrize("switches", [{}, {"network": "cpu-feedback", "learning_agents": 2, "weight_average": 0.9}])
+def test_a_resumed_run_ends_where_the_uninterrupted_run_ends(tmp_path, switches):
+    """Scenarios, sampling and minibatches are drawn from streams of the episode and update
+    number, so 2 + (resume) + 2 episode sets give the weights (and their average) of 4."""
+    cfg = make_config("cpu", **TINY, **switches)
+    whole = Trainer(cfg, tmp_path / "whole", resume=False, log=lambda *_: None)
+    whole.train(episodes=4)
+    Trainer(cfg, tmp_path / "parts", resume=False, log=lambda *_: None).train(episodes=2)
+    resumed = Trainer(cfg, tmp_path / "parts", resume=True, log=lambda *_: None)
+    resumed.train(episodes=2)
+    assert resumed.episode == whole.episode == 4
+    nets = [(whole.net, resumed.net)]
+    if cfg.weight_average:
+        nets.append((whole.learner.averaged, resumed.learner.averaged))
+    for a, b in nets:
+        for key, value in a.state_dict().items():
+            assert torch.equal(value, b.state_dict()[key]), key
+
+
 def test_a_killed_training_process_resumes_from_its_last_checkpoint(tmp_path):
     """SIGKILL mid-run loses nothing before the last checkpoint; the run then continues."""
     run_dir = tmp_path / "run"
@@ -265,7 +284,7 @@ def test_a_committed_checkpoint_resumes_weights_optimiser_and_counters(tmp_path)
     small = dataclasses.replace(cfg, teams=(4,), world_sizes=((16, 16),), episode_steps=8, rollout_steps=8)
     envs = MetaAgents(small)
     envs.reset(learner.episode)
-    actor = Actor(small, learner.net, np.arange(4), version=learner.version)
+    actor = Actor(small, learner.net, np.arange(4))
     actor.start_episode(learner.episode)
     frame = envs.observe()
     for _ in range(8):

@@ -45,18 +45,17 @@ def test_training_config_survives_its_json_form(tmp_path):
 
 
 def test_world_stream_draws_the_trainers_scenarios():
-    """The world node's scenarios (sample_scenarios on scenario_rng) are MetaAgents' ones,
-    also when a run resumes at a later episode."""
+    """The world node's scenarios (sample_scenarios on each episode's scenario_rng) are
+    MetaAgents' ones, also when a run resumes at a later episode."""
     cfg = make_config("cpu", teams=(6,), world_sizes=((20, 40),), obstacle_range=(0.0, 0.1), curriculum_start=1,
                       curriculum_end=3)
     envs = MetaAgents(cfg)
-    stream = scenario_rng(cfg, 0)
     for episode in range(4):
         envs.reset(episode)
-        (scenario,), highway, _ = sample_scenarios(cfg, stream, episode)
+        (scenario,), highway, _ = sample_scenarios(cfg, scenario_rng(cfg, episode), episode)
         assert scenario.to_json() == envs.worlds[0].scenario.to_json()
         assert highway == envs.highway
-    envs = MetaAgents(cfg, first_episode=7)
+    envs = MetaAgents(cfg)
     envs.reset(7)
     assert sample_scenarios(cfg, scenario_rng(cfg, 7), 7)[0][0].to_json() == envs.worlds[0].scenario.to_json()
 

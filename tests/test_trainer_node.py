@@ -52,9 +52,9 @@ def quiet(_text: str) -> None:
 def collect(net, episode: int) -> dict[str, np.ndarray]:
     """One chunk (a whole episode) from the training worlds and the actor, as ``formic train``
     collects it: the rollout with the behaviour policy's outputs."""
-    envs = MetaAgents(CFG, first_episode=episode)
+    envs = MetaAgents(CFG)
     envs.reset(episode)
-    actor = Actor(CFG, net, np.arange(envs.n_agents), version=0)
+    actor = Actor(CFG, net, np.arange(envs.n_agents))
     actor.start_episode(episode)
     frame = envs.observe()
     for _ in range(STEPS):

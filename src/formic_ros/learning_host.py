@@ -42,7 +42,7 @@ def rollout_message(rollout: dict[str, np.ndarray], weights_version: int, host: 
 
 class HostActor:
     """This host's agents as ``formic train``'s :class:`Actor`, made with the first weights
-    (their version seeds its streams). Per episode :meth:`start_episode`; per step :meth:`act`,
+    (its streams are seeded per episode). Per episode :meth:`start_episode`; per step :meth:`act`,
     then :meth:`outcome`, which returns the chunk's Rollout message (tagged with the weights
     version that acted and the food delivered) once it is complete. ``first_episode``: the
     global number of the first episode (a resumed run's)."""
@@ -66,7 +66,7 @@ class HostActor:
     def load_weights(self, msg) -> int:
         self.version = apply_weights(self, msg)
         if self.actor is None:
-            self.actor = Actor(self.cfg, self.net, self.ids, version=self.version)
+            self.actor = Actor(self.cfg, self.net, self.ids)
         return self.version
 
     def start_episode(self, loads: np.ndarray) -> None:

@@ -29,7 +29,7 @@ def serve_training_world(
 ) -> list[dict]:
     """Distributed training's world: ``episodes`` episodes, each on a new scenario drawn as the
     in-process trainer draws them (:func:`formic_trainer.worlds.sample_scenarios` from the
-    run's scenario stream at ``first_episode``: world size, obstacles, curriculum intensities,
+    episode's scenario stream: world size, obstacles, curriculum intensities,
     training start), with the training masks in the observations. One meta-agent world: the
     configuration's ``teams`` must hold one team. ``on_episode`` gets each episode's summary
     (with ``episode``, the global episode number, and the curriculum's intensities)."""
@@ -40,12 +40,11 @@ def serve_training_world(
 
     require_one_world(cfg)
     options = replace(options, training_masks=True, policy_label=options.policy_label or "formic:learning")
-    rng = scenario_rng(cfg, first_episode)
     summaries = []
     with world_lock(options.namespace, domain_id), ros_session(domain_id) as executor:
         node = None
         for episode in range(first_episode, first_episode + episodes):
-            (scenario,), highway, deposit = sample_scenarios(cfg, rng, episode)
+            (scenario,), highway, deposit = sample_scenarios(cfg, scenario_rng(cfg, episode), episode)
             if node is None:
                 node = WorldNode(scenario, options)
                 executor.add_node(node)

@@ -1,8 +1,9 @@
 """The actor: a set of agents (team-wide ids, in order) acting under the training filter.
 
 One LSTM state per agent, a torch sampler and a numpy stream of its own (the episode's
-unfiltered agents under filter annealing, the "replace" filter's replacements), seeded from
-the weights version it starts with (:func:`actor_streams`), and one rollout buffer for its
+unfiltered agents under filter annealing, the "replace" filter's replacements), seeded anew
+from the global episode number at every episode start (:func:`actor_streams`), so a resumed
+run acts exactly as an uninterrupted one, and one rollout buffer for its
 learning agents. Per episode :meth:`Actor.start_episode`; per step :meth:`Actor.act`, then
 :meth:`Actor.reward`; at a chunk's end :meth:`Actor.rollout`, for the learner. ``formic
 train`` runs one over all its worlds' agents, a ROS learning host one over its agents.
@@ -22,11 +23,11 @@ from .worlds import Frame
 SAMPLER_STRIDE = 1_000_003  # streams of actors whose first agents differ never meet
 
 
-def actor_streams(cfg: TrainConfig, version: int, first_agent: int = 0) -> tuple[torch.Generator, np.random.Generator]:
-    """The torch sampler and the numpy stream of an actor that starts acting with weights
-    ``version`` and whose first agent is ``first_agent``."""
-    generator = torch.Generator().manual_seed(cfg.seed + int(version) + SAMPLER_STRIDE * int(first_agent))
-    return generator, np.random.default_rng([cfg.seed, 4, int(version), int(first_agent)])
+def actor_streams(cfg: TrainConfig, episode: int, first_agent: int = 0) -> tuple[torch.Generator, np.random.Generator]:
+    """The torch sampler and the numpy stream of an actor in global episode ``episode`` whose
+    first agent is ``first_agent``."""
+    generator = torch.Generator().manual_seed(cfg.seed + int(episode) + SAMPLER_STRIDE * int(first_agent))
+    return generator, np.random.default_rng([cfg.seed, 4, int(episode), int(first_agent)])
 
 
 def learning_rows(cfg: TrainConfig, ids: np.ndarray) -> np.ndarray:
@@ -70,11 +71,12 @@ def select_actions(cfg: TrainConfig, logits: torch.Tensor, train_mask: np.ndarra
 
 
 class Actor:
-    def __init__(self, cfg: TrainConfig, net: ForMICNet, agent_ids, version: int = 0):
+    def __init__(self, cfg: TrainConfig, net: ForMICNet, agent_ids):
         self.cfg, self.net = cfg, net
         self.ids = np.asarray(agent_ids, dtype=np.int64)
         self.learning = learning_rows(cfg, self.ids)
-        self.generator, self.rng = actor_streams(cfg, version, int(self.ids[0]) if len(self.ids) else 0)
+        self.first_agent = int(self.ids[0]) if len(self.ids) else 0
+        self.generator, self.rng = actor_streams(cfg, 0, self.first_agent)  # replaced at each episode start
         self.unfiltered = np.zeros(len(self.ids), dtype=bool)
         self.state = net.initial_state(len(self.ids))
         self.valid_rate: list[float] = []  # per step: share of free agents whose action was valid
@@ -86,7 +88,8 @@ class Actor:
 
     def start_episode(self, episode: int) -> None:
         """A new episode (global number ``episode``): fresh LSTM states, and which agents act
-        unfiltered in it (filter annealing)."""
+        unfiltered in it (filter annealing), and the episode's own random streams."""
+        self.generator, self.rng = actor_streams(self.cfg, episode, self.first_agent)
         self.unfiltered = self.rng.random(len(self.ids)) >= filter_probability(self.cfg, episode)
         self.state = self.net.initial_state(len(self.ids))
         self.valid_rate = []

@@ -1,5 +1,5 @@
 """The learner: network, optimiser, counters (the weights version is the updates so far),
-its own random stream (minibatch permutations), the optional moving average of the weights
+its own random stream per update (minibatch permutations), the optional moving average of the weights
 (``weight_average``), checkpoints, resume and the TensorBoard log.
 :meth:`Learner.learn` makes one update from an actor's rollout. ``formic train`` and the ROS
 trainer node (``formic train-ros``) both drive it."""
@@ -29,7 +29,7 @@ PROGRESS = ("episode", "updates", "env_steps", "seconds", "cpu_seconds")
 
 
 def learner_stream(cfg: TrainConfig, updates: int) -> np.random.Generator:
-    """The learner's random stream (minibatch permutations) of a run at ``updates`` updates."""
+    """The learner's random stream (minibatch permutations) for the update made after ``updates`` updates."""
     return np.random.default_rng([cfg.seed, 5, int(updates)])
 
 
@@ -59,7 +59,6 @@ class Learner:
             self.log(f"network initialised from {cfg.init_weights}")
         if cfg.weight_average and self.averaged is None:  # a new run: the average starts at the weights
             self.averaged = copy.deepcopy(self.net).requires_grad_(False)
-        self.rng = learner_stream(cfg, self.updates)
         config_text = json.dumps(cfg.to_dict(), indent=2)
         (self.run_dir / "config.json").write_text(config_text)
         from torch.utils.tensorboard import SummaryWriter
@@ -97,7 +96,8 @@ class Learner:
         """One update from one rollout; ``env_steps``: the agent-steps it stands for (default:
         its learning agents')."""
         set_learning_rate(self.optimizer, self.cfg, self.updates)
-        stats = update(self.net, self.optimizer, self.cfg, update_data(self.cfg, rollout), self.rng)
+        rng = learner_stream(self.cfg, self.updates)  # per update: a resumed run permutes as an uninterrupted one
+        stats = update(self.net, self.optimizer, self.cfg, update_data(self.cfg, rollout), rng)
         if self.averaged is not None:
             with torch.no_grad():
                 weights = self.net.state_dict()

@@ -27,8 +27,8 @@ class Trainer:
     def __init__(self, cfg: TrainConfig, run_dir: Path, resume: bool = True, log=print):
         self.cfg, self.log = cfg, log
         self.learner = Learner(cfg, run_dir, resume=resume, log=log)
-        self.envs = MetaAgents(cfg, first_episode=self.learner.episode)
-        self.actor = Actor(cfg, self.learner.net, np.arange(self.envs.n_agents), version=self.learner.version)
+        self.envs = MetaAgents(cfg)
+        self.actor = Actor(cfg, self.learner.net, np.arange(self.envs.n_agents))
 
     # the run's progress, as the learner counts it
     net = property(lambda self: self.learner.net)

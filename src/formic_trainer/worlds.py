@@ -73,9 +73,8 @@ def share_rewards(rewards: np.ndarray, fraction: float) -> np.ndarray:
 class MetaAgents:
     """All training worlds, stepped together so one forward pass serves every agent."""
 
-    def __init__(self, cfg: TrainConfig, first_episode: int = 0):
+    def __init__(self, cfg: TrainConfig):
         self.cfg = cfg
-        self.rng = scenario_rng(cfg, first_episode)
         self.worlds: list[World] = []
         self.offsets = np.cumsum([0, *cfg.teams])
         self.n_agents = int(self.offsets[-1])
@@ -84,8 +83,9 @@ class MetaAgents:
         self._seen: list[tuple[np.ndarray, np.ndarray]] = []  # each world's last (observations, valid)
 
     def reset(self, episode: int) -> None:
-        """New scenarios for every world; curriculum intensities from the global episode."""
-        scenarios, self.highway, self.deposit = sample_scenarios(self.cfg, self.rng, episode)
+        """New scenarios for every world, drawn from the episode's own stream (a resumed run
+        draws what an uninterrupted one would); curriculum intensities from the global episode."""
+        scenarios, self.highway, self.deposit = sample_scenarios(self.cfg, scenario_rng(self.cfg, episode), episode)
         self.worlds = [World(scenario) for scenario in scenarios]
         self.feedback.reset(self.n_agents)
         if self.cfg.imitate:
