@@ -28,7 +28,7 @@ class Frame(NamedTuple):
 
 
 def scenario_rng(cfg: TrainConfig, episode: int) -> np.random.Generator:
-    """The scenario stream of a run that starts (or resumes) at global ``episode``."""
+    """The scenario stream of global ``episode`` (each episode set draws from its own)."""
     return np.random.default_rng([cfg.seed, 3, episode])
 
 
