@@ -429,3 +429,17 @@ def test_fewer_learning_agents_than_minibatches_still_train(tmp_path):
     trainer.train(episodes=1)
     assert trainer.updates == 2
     assert any(not torch.equal(before[k], v) for k, v in trainer.net.state_dict().items())
+
+
+def test_actor_streams_of_other_seeds_episodes_or_agents_differ():
+    """No (seed, episode, first agent) shares its sampler or numpy stream with another."""
+    from formic_trainer.actor import actor_streams
+
+    keys = [(8, 4, 0), (9, 3, 0), (8, 3, 1), (8, 4, 1), (9, 4, 0)]
+    draws = []
+    for seed, episode, agent in keys:
+        sampler, stream = actor_streams(make_config("cpu", seed=seed), episode, agent)
+        draws.append((tuple(torch.rand(4, generator=sampler).tolist()), tuple(stream.random(4))))
+    assert len({d[0] for d in draws}) == len({d[1] for d in draws}) == len(keys)
+    again = actor_streams(make_config("cpu", seed=8), 4, 0)
+    assert tuple(torch.rand(4, generator=again[0]).tolist()) == draws[0][0]

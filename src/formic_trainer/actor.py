@@ -20,14 +20,15 @@ from .algorithm import sampling_mask
 from .config import TrainConfig
 from .worlds import Frame
 
-SAMPLER_STRIDE = 1_000_003  # streams of actors whose first agents differ never meet
-
-
 def actor_streams(cfg: TrainConfig, episode: int, first_agent: int = 0) -> tuple[torch.Generator, np.random.Generator]:
     """The torch sampler and the numpy stream of an actor in global episode ``episode`` whose
-    first agent is ``first_agent``."""
-    generator = torch.Generator().manual_seed(cfg.seed + int(episode) + SAMPLER_STRIDE * int(first_agent))
-    return generator, np.random.default_rng([cfg.seed, 4, int(episode), int(first_agent)])
+    first agent is ``first_agent``: both from seed sequences of (seed, episode, first agent), so
+    no two of those share a stream (a sum such as seed + episode would: seed 8 at episode 4 and
+    seed 9 at episode 3)."""
+    key = [cfg.seed, int(episode), int(first_agent)]
+    sampler_seed = int(np.random.SeedSequence([key[0], 6, *key[1:]]).generate_state(1, np.uint64)[0] >> np.uint64(1))
+    generator = torch.Generator().manual_seed(sampler_seed)
+    return generator, np.random.default_rng([key[0], 4, *key[1:]])
 
 
 def learning_rows(cfg: TrainConfig, ids: np.ndarray) -> np.ndarray:
