@@ -94,9 +94,5 @@ def world_lock(namespace: str, domain_id: int | None = None) -> Iterator[Path]:
 def check_world_free(namespace: str, domain_id: int | None = None) -> None:
     """:class:`WorldAlreadyServed` now, before a launcher starts any process, when another world
     serves there (the world it then starts takes the lock itself)."""
-    domain = effective_domain(domain_id)
-    fd = _open(lock_path(namespace, domain))[0]
-    try:
-        _lock_or_raise(fd, namespace, domain)
-    finally:
-        os.close(fd)
+    with world_lock(namespace, domain_id):
+        pass

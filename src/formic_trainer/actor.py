@@ -77,7 +77,8 @@ class Actor:
         self.ids = np.asarray(agent_ids, dtype=np.int64)
         self.learning = learning_rows(cfg, self.ids)
         self.first_agent = int(self.ids[0]) if len(self.ids) else 0
-        self.generator, self.rng = actor_streams(cfg, 0, self.first_agent)  # replaced at each episode start
+        self.generator: torch.Generator | None = None  # the episode's streams: set by start_episode
+        self.rng: np.random.Generator | None = None
         self.unfiltered = np.zeros(len(self.ids), dtype=bool)
         self.state = net.initial_state(len(self.ids))
         self.valid_rate: list[float] = []  # per step: share of free agents whose action was valid

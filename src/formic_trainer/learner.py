@@ -51,14 +51,17 @@ class Learner:
         self.cpu_seconds = 0.0
         self.averaged = None  # the moving average of the weights (a network), when weight_average > 0
         latest = self.run_dir / "latest.pt"
+        stored_average = None
         if resume and latest.exists():
-            self._resume(latest)
+            stored_average = self._resume(latest)
         elif cfg.init_weights:
             net, _ = load_network(cfg.init_weights)
             initialise_from(self.net, net)
             self.log(f"network initialised from {cfg.init_weights}")
-        if cfg.weight_average and self.averaged is None:  # a new run: the average starts at the weights
+        if cfg.weight_average:  # the average starts at the weights, unless the checkpoint carries one
             self.averaged = copy.deepcopy(self.net).requires_grad_(False)
+            if stored_average is not None:
+                self.averaged.load_state_dict(stored_average)
         config_text = json.dumps(cfg.to_dict(), indent=2)
         (self.run_dir / "config.json").write_text(config_text)
         from torch.utils.tensorboard import SummaryWriter
@@ -71,7 +74,8 @@ class Learner:
         """The weights version: updates made so far."""
         return self.updates
 
-    def _resume(self, path: Path) -> None:
+    def _resume(self, path: Path) -> dict | None:
+        """Weights, optimiser and counters from ``path``; returns the weight average it carries."""
         payload = read_checkpoint(path)
         stored = payload.get("train_config", {})
         changed = sorted(k for k, v in self.cfg.to_dict().items()
@@ -83,14 +87,11 @@ class Learner:
             )
         self.net.load_state_dict(payload["state_dict"])
         self.optimizer.load_state_dict(payload["optimizer"])
-        if self.cfg.weight_average:
-            self.averaged = copy.deepcopy(self.net).requires_grad_(False)
-            if "averaged_state_dict" in payload:  # else (switched on at this resume) it starts at the weights
-                self.averaged.load_state_dict(payload["averaged_state_dict"])
         progress = {"cpu_seconds": payload["progress"]["seconds"]} | payload["progress"]
         for key in PROGRESS:
             setattr(self, key, progress[key])
         self.log(f"resumed from {path}: episode {self.episode}, update {self.updates}")
+        return payload.get("averaged_state_dict")
 
     def learn(self, rollout: dict[str, np.ndarray], env_steps: int | None = None) -> dict[str, float]:
         """One update from one rollout; ``env_steps``: the agent-steps it stands for (default:
