@@ -249,6 +249,36 @@ def test_imitation_loss_is_the_cross_entropy_of_the_demonstrators_actions():
     assert terms["loss"].item() == pytest.approx(without["loss"].item() + 0.5 * ce.item(), rel=1e-5)
 
 
+@pytest.mark.parametrize("queued_value_loss", [False, True])
+def test_queued_steps_train_the_critic_only_with_queued_value_loss(queued_value_loss):
+    """Queued steps (loss_mask 0) stay out of the policy, entropy and valid terms either way; the
+    value term covers them only with queued_value_loss, still excluding value_mask's steps."""
+    torch.manual_seed(0)
+    cfg = make_config("cpu", queued_value_loss=queued_value_loss)
+    net = ForMICNet(NETWORK_PRESETS["cpu"])
+    T, B = 4, 3
+    gen = torch.Generator().manual_seed(2)
+    loss_mask = torch.tensor([[1.0, 1, 0], [0, 1, 1], [1, 0, 1], [1, 1, 1]])  # 0: the agent is queued
+    value_mask = torch.tensor([[1.0, 1, 1], [1, 1, 1], [1, 1, 0], [1, 1, 1]])
+    batch = {
+        "obs": torch.rand(T, B, 8, 11, 11, generator=gen), "extra": torch.zeros(T, B, 4),
+        "h0": torch.zeros(1, B, 64), "c0": torch.zeros(1, B, 64),
+        "actions": torch.randint(0, 5, (T, B), generator=gen), "logp": torch.full((T, B), -1.6),
+        "train_mask": torch.ones(T, B, 5, dtype=torch.bool), "any_valid": torch.ones(T, B),
+        "loss_mask": loss_mask, "value_mask": value_mask, "returns": torch.rand(T, B, generator=gen),
+        "advantages": torch.rand(T, B, generator=gen),
+    }
+    terms = policy_losses(net, cfg, batch)
+    _, values, _ = net(batch["obs"], (batch["h0"], batch["c0"]), batch["extra"])
+    err = 0.5 * (values - batch["returns"]) ** 2
+    expected = value_mask if queued_value_loss else loss_mask * value_mask
+    assert terms["value"].item() == pytest.approx(((err * expected).sum() / expected.sum()).item(), rel=1e-5)
+    plain = policy_losses(net, make_config("cpu"), batch)
+    for key in ("policy", "entropy", "valid"):
+        assert terms[key].item() == pytest.approx(plain[key].item(), rel=1e-6)
+    assert make_config("cpu").queued_value_loss is False and make_config("paper").queued_value_loss is False
+
+
 def test_modes_are_checked_when_a_config_is_made():
     with pytest.raises(ValueError, match="action_filter must be one of 'replace', 'mask', 'none', not 'mask2'"):
         make_config("cpu", **parse_overrides(["action_filter=mask2"]))

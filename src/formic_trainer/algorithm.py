@@ -48,7 +48,7 @@ def policy_losses(net: ForMICNet, cfg: TrainConfig,
     logp = log_probs.gather(-1, batch["actions"].unsqueeze(-1)).squeeze(-1)
     entropy = -(log_probs.exp() * log_probs).sum(-1)
     loss_mask = batch["loss_mask"]
-    value_mask = loss_mask * batch["value_mask"]
+    value_mask = batch["value_mask"] if cfg.queued_value_loss else loss_mask * batch["value_mask"]
     adv = batch["advantages"]
     if cfg.clip > 0:
         ratio = torch.exp(logp - batch["logp"])
