@@ -4,7 +4,9 @@ The nest serves at most 4 agents at once; an agent that has unloaded stays on it
 0) until it walks away (SPEC §1). For every step of every stored scenario this averages: the
 carrying agents that are free (not queued) within ``--radius`` cells (Chebyshev) of the nest
 centre, the agents in cache queues, the docks held by an agent that has finished (free, on
-spot 0) and, of the crowd's agents, the share whose action moved them. A policy that homes
+spot 0), of the crowd's agents the share whose action moved them, and how often a free agent that
+could JOIN (valid at the start of a step: a loaded agent a cache queue, an empty one a resource
+queue) stands in such a queue after the step. A policy that homes
 by dead reckoning and pheromones can reach the nest's neighbourhood and still miss the queue
 entries in a crowd; one that knows the nest direction (C-SAF-11) queues instead.
 
@@ -25,7 +27,8 @@ from formic_world.geometry import nest_centre
 from formic_world.scenario import ScenarioError
 from formic_world.scenario_sets import first_stored
 
-MEASURES = ("crowd", "in_cache_queues", "docks_held", "crowd_moving")
+MEASURES = ("crowd", "in_cache_queues", "docks_held", "crowd_moving", "cache_join", "resource_join")
+SHARES = {"crowd_moving": "crowd", "cache_join": "could_join_cache", "resource_join": "could_join_resource"}
 
 
 class CrowdCounter:
@@ -35,8 +38,8 @@ class CrowdCounter:
         self.radius = radius
         self.sums = dict.fromkeys(MEASURES, 0.0)
         self.steps = 0
-        self.crowd_steps = 0
-        self.before: tuple[np.ndarray, np.ndarray] | None = None
+        self.denominators = dict.fromkeys(SHARES.values(), 0)
+        self.before: tuple[np.ndarray, ...] | None = None
 
     def __call__(self, world) -> None:
         centre = np.array(nest_centre(*world.grid.shape))  # between the 4 caches
@@ -47,18 +50,23 @@ class CrowdCounter:
         on_dock = world.agent_at[docks[:, 0], docks[:, 1]]
         held = [a for a in on_dock if a >= 0 and not world.queued[a]]
         if self.before is not None:
-            was_crowd, pos = self.before
+            was_crowd, pos, could_join_cache, could_join_resource = self.before
             self.sums["crowd_moving"] += float(((world.pos != pos).any(axis=1) & was_crowd).sum())
-            self.crowd_steps += int(was_crowd.sum())
+            self.sums["cache_join"] += float((could_join_cache & cache_queued).sum())
+            self.sums["resource_join"] += float((could_join_resource & world.queued & ~(world.queue_of < 4)).sum())
+            for key, mask in (("crowd", was_crowd), ("could_join_cache", could_join_cache),
+                              ("could_join_resource", could_join_resource)):
+                self.denominators[key] += int(mask.sum())
         self.sums["crowd"] += float(crowd.sum())
         self.sums["in_cache_queues"] += float(cache_queued.sum())
         self.sums["docks_held"] += float(len(held))
         self.steps += 1
-        self.before = (crowd, world.pos.copy())
+        can_join = world.action_mask()[:, 4] & ~world.queued
+        self.before = (crowd, world.pos.copy(), can_join & world.carrying, can_join & ~world.carrying)
 
     def table(self) -> dict[str, float]:
-        out = {key: self.sums[key] / max(self.steps, 1) for key in MEASURES if key != "crowd_moving"}
-        out["crowd_moving"] = self.sums["crowd_moving"] / max(self.crowd_steps, 1)
+        out = {key: self.sums[key] / max(self.steps, 1) for key in MEASURES if key not in SHARES}
+        out |= {key: self.sums[key] / max(self.denominators[of], 1) for key, of in SHARES.items()}
         return out
 
 
@@ -93,7 +101,8 @@ def main(policies, model, scenario_dir, size, teams, count, steps, radius, out) 
             results.append(row)
             click.echo(f"{policy:8s} {team:4d} agents  food {row['food']:6.1f}  crowd {row['crowd']:5.1f}  "
                        f"in cache queues {row['in_cache_queues']:4.1f}  docks held {row['docks_held']:.2f}  "
-                       f"crowd moving {row['crowd_moving']:.0%}")
+                       f"crowd moving {row['crowd_moving']:.0%}  joins when it may: loaded {row['cache_join']:.0%}, "
+                       f"empty {row['resource_join']:.0%}")
     if out:
         Path(out).write_text(json.dumps({"radius": radius, "steps": steps, "model": model, "results": results},
                                         indent=1))
