@@ -279,6 +279,30 @@ def test_queued_steps_train_the_critic_only_with_queued_value_loss(queued_value_
     assert make_config("cpu").queued_value_loss is False and make_config("paper").queued_value_loss is False
 
 
+def test_join_validity_loss_is_the_bce_of_the_join_logit_on_free_steps():
+    torch.manual_seed(0)
+    net = ForMICNet(NETWORK_PRESETS["cpu"])
+    T, B = 3, 4
+    gen = torch.Generator().manual_seed(3)
+    train_mask = torch.ones(T, B, 5, dtype=torch.bool)
+    train_mask[..., 4] = torch.tensor([[True, False, False, True], [False, False, True, False], [True, True, False, False]])
+    loss_mask = torch.tensor([[1.0, 1, 0, 1], [1, 0, 1, 1], [1, 1, 1, 0]])
+    batch = {
+        "obs": torch.rand(T, B, 8, 11, 11, generator=gen), "extra": torch.zeros(T, B, 4),
+        "h0": torch.zeros(1, B, 64), "c0": torch.zeros(1, B, 64),
+        "actions": torch.randint(0, 5, (T, B), generator=gen), "logp": torch.full((T, B), -1.6),
+        "train_mask": train_mask, "any_valid": torch.ones(T, B), "loss_mask": loss_mask,
+        "value_mask": torch.ones(T, B), "returns": torch.zeros(T, B), "advantages": torch.rand(T, B, generator=gen),
+    }
+    terms = policy_losses(net, make_config("cpu", valid_join_coef=0.5), batch)
+    logits, _, _ = net(batch["obs"], (batch["h0"], batch["c0"]), batch["extra"])
+    bce = torch.nn.functional.binary_cross_entropy_with_logits(logits[..., 4], train_mask[..., 4].float(), reduction="none")
+    assert terms["valid_join"].item() == pytest.approx(((bce * loss_mask).sum() / loss_mask.sum()).item(), rel=1e-5)
+    plain = policy_losses(net, make_config("cpu"), batch)
+    assert "valid_join" not in plain
+    assert terms["loss"].item() == pytest.approx(plain["loss"].item() + 0.5 * terms["valid_join"].item(), rel=1e-5)
+
+
 def test_modes_are_checked_when_a_config_is_made():
     with pytest.raises(ValueError, match="action_filter must be one of 'replace', 'mask', 'none', not 'mask2'"):
         make_config("cpu", **parse_overrides(["action_filter=mask2"]))

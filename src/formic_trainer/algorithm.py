@@ -74,6 +74,11 @@ def policy_losses(net: ForMICNet, cfg: TrainConfig,
     }
     terms["loss"] = (terms["policy"] - cfg.entropy_coef * terms["entropy"]
                      + cfg.value_coef * terms["value"] + cfg.valid_coef * terms["valid"])
+    if cfg.valid_join_coef > 0:
+        join_valid = batch["train_mask"][..., 4].float()
+        terms["valid_join"] = reduce(F.binary_cross_entropy_with_logits(logits[..., 4], join_valid, reduction="none"),
+                                     loss_mask)
+        terms["loss"] = terms["loss"] + cfg.valid_join_coef * terms["valid_join"]
     if "expert_actions" in batch:  # the agents' own unmasked policy, as it acts at test time
         own = torch.log_softmax(logits, dim=-1).gather(-1, batch["expert_actions"].unsqueeze(-1)).squeeze(-1)
         terms["imitation"] = reduce(-own, batch["imitation_mask"])

@@ -59,6 +59,12 @@ class TrainConfig:
     # threshold at 0) left agents unable to act unmasked (measured: 59 food with the filter,
     # 3 without); "mass" trains exactly the unmasked softmax agents use at test time.
     valid_loss: Literal["bce", "mass"] = "bce"
+    # The paper's valid-action BCE on the JOIN logit alone, beside valid_loss (beyond the cpu
+    # preset, which leaves JOIN to the policy gradient: see valid_actions). For a trained
+    # policy: at 128 agents the shipped model JOINs on 44% of the steps where a loaded agent
+    # may (91% at 16 agents), and a cache-entry mark in the observation is not a valid JOIN on
+    # a quarter of them (the entry cell is taken). 0 = off.
+    valid_join_coef: float = 0.0
     # With action_filter="mask": also mask JOIN when invalid (True), or let agents try JOIN
     # anywhere as at test time, where a JOIN with no queue in reach wastes the step (False).
     mask_join: bool = True
