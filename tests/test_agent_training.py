@@ -20,10 +20,10 @@ from formic_agent.network import NETWORK_PRESETS, ForMICNet, NetworkConfig, coun
 from formic_agent.policy import AgentBatch
 from formic_runtime.registry import make_policy
 from formic_trainer.algorithm import policy_losses, sampling_mask, set_learning_rate
-from formic_trainer.config import make_config, parse_overrides
+from formic_trainer.config import make_config, parse_overrides, reward_config
 from formic_trainer.train import Trainer
-from formic_trainer.worlds import MetaAgents, share_rewards
-from formic_world import World, WorldConfig, generate_scenario
+from formic_trainer.worlds import MetaAgents, sample_scenarios, share_rewards
+from formic_world import REWARD_PRESETS, World, WorldConfig, generate_scenario
 
 TINY = dict(teams=(4,), world_sizes=((16, 16),), episode_steps=32, rollout_steps=16, threads=1)
 
@@ -150,6 +150,19 @@ def test_overrides_are_typed_and_checked():
         parse_overrides(["world_sizes=40:96"])
     with pytest.raises(ValueError, match="cannot be set"):
         parse_overrides(["obstacle_range=0,1"])
+
+
+def test_reward_overrides_replace_single_rewards_of_the_preset_in_the_training_worlds():
+    cfg = make_config("cpu", rewards="reference", teams=(4,), world_sizes=((20, 20),),
+                      **parse_overrides(["reward_overrides=deposit=10, blocked=-0.25"]))
+    expected = dataclasses.replace(REWARD_PRESETS["reference"], deposit=10.0, blocked=-0.25)
+    assert reward_config(cfg) == expected and reward_config(make_config("cpu")) == REWARD_PRESETS["paper"]
+    scenarios, _, _ = sample_scenarios(cfg, np.random.default_rng(0), episode=0)
+    assert scenarios[0].config.rewards == expected
+    with pytest.raises(ValueError, match="reward field"):
+        make_config("cpu", reward_overrides="deposits=10")
+    with pytest.raises(ValueError, match="needs a number"):
+        make_config("cpu", reward_overrides="deposit=ten")
 
 
 def test_formic_sim_json_matches_the_in_process_episode(tmp_path):

@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Literal
 
 from formic_agent.network import NETWORK_PRESETS
-from formic_world import REWARD_PRESETS
+from formic_world import REWARD_PRESETS, RewardConfig
 
 
 @dataclass
@@ -113,6 +113,11 @@ class TrainConfig:
     action_filter: Literal["replace", "mask", "none"] = "replace"  # replace (paper); mask: mask invalid logits
     training_filter: Literal["paper", "reference"] = "paper"  # carrying agents' filter (SPEC §4)
     rewards: Literal["paper", "reference"] = "paper"  # a formic_world.REWARD_PRESETS name (SPEC §4)
+    # Single rewards replacing the preset's (beyond the paper): "deposit=10,blocked=-0.5", fields
+    # of formic_world.RewardConfig. Measured (models/formic_paper.md): with the paper's table loaded
+    # agents queue twice as much as with the reference code's (deposit +10 against +5) but agents
+    # that have unloaded hold the docks longer (a blocked step costs -0.05 against -0.5).
+    reward_overrides: str = ""
     pheromones: bool = True  # False: train (and test) without pheromones
     curriculum: bool = True
     curriculum_start: int = 5000
@@ -131,12 +136,29 @@ class TrainConfig:
             raise ValueError(f"network must be one of {', '.join(map(repr, NETWORK_PRESETS))}, not {self.network!r}")
         if not 0.0 <= self.weight_average < 1.0:
             raise ValueError(f"weight_average is a decay in [0, 1) (0 = off), not {self.weight_average}")
+        reward_config(self)  # a bad reward_overrides fails here, not at the first episode
         if len(self.world_sizes) < len(self.teams):
             raise ValueError(f"{len(self.teams)} teams but {len(self.world_sizes)} world_sizes: give one side "
                              "range per team (--set world_sizes=40-96,64-128)")
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
+
+
+def reward_config(cfg: TrainConfig) -> RewardConfig:
+    """The training worlds' rewards: the ``rewards`` preset with ``reward_overrides`` applied."""
+    fields = {f.name for f in dataclasses.fields(RewardConfig)}
+    changes: dict[str, float] = {}
+    for item in filter(None, (part.strip() for part in cfg.reward_overrides.split(","))):
+        name, sep, text = item.partition("=")
+        if not sep or name.strip() not in fields:
+            raise ValueError(f"reward_overrides: {item!r} is not FIELD=NUMBER with a reward field "
+                             f"({', '.join(sorted(fields))})")
+        try:
+            changes[name.strip()] = float(text)
+        except ValueError:
+            raise ValueError(f"reward_overrides: {name.strip()} needs a number, not {text!r}") from None
+    return dataclasses.replace(REWARD_PRESETS[cfg.rewards], **changes)
 
 
 @functools.cache

@@ -10,10 +10,10 @@ import numpy as np
 from formic_agent.network import ActionFeedback, extra_inputs, nest_features
 from formic_agent.policy import AgentBatch
 from formic_runtime.registry import make_policy
-from formic_world import REWARD_PRESETS, Scenario, World, WorldConfig, generate_scenario
+from formic_world import Scenario, World, WorldConfig, generate_scenario
 from formic_world.pheromones import curriculum_intensities
 
-from .config import TrainConfig
+from .config import TrainConfig, reward_config
 
 
 class Frame(NamedTuple):
@@ -51,7 +51,7 @@ def sample_scenarios(cfg: TrainConfig, rng: np.random.Generator,
             episode_steps=cfg.episode_steps, view_size=cfg.view_size,
             highway_intensity=highway, deposit_strength=deposit,
             pheromones_visible=cfg.pheromones, training_start=cfg.training_start,
-            training_filter=cfg.training_filter, rewards=REWARD_PRESETS[cfg.rewards],
+            training_filter=cfg.training_filter, rewards=reward_config(cfg),
         )
         scenarios.append(generate_scenario(config, int(rng.integers(2**31))))
     return scenarios, highway, deposit
