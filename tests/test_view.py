@@ -296,10 +296,10 @@ def _check_stream(got: dict, n_agents: int, size: int, summary: dict) -> None:
 def test_sim_view_cli_streams_the_episode_to_a_viewer(tmp_path):
     port = _free_port()
     process = _formic(["sim", "--view", "--view-port", str(port), "--view-wait", "--policy", "csaf11",
-                       "--agents", "16", "--size", "32", "--steps", "400", "--json", "--out", str(tmp_path)],
+                       "--agents", "16", "--size", "32", "--steps", "2000", "--json", "--out", str(tmp_path)],
                       tmp_path / "stderr.log")
-    try:
-        got = _watch(process, tmp_path / "stderr.log", port, 400)
+    try:  # 2000 steps: about a second at the view's 10 Hz, so several frames follow the last subscription
+        got = _watch(process, tmp_path / "stderr.log", port, 2000)
     finally:
         out = _reap(process, 120)
     assert process.returncode == 0, (tmp_path / "stderr.log").read_text()
