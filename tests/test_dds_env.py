@@ -87,18 +87,25 @@ def test_default_profile_discovers_on_this_machine_and_binds_loopback_only():
     out = _run_pair([], [], env, env)
     assert "received 1" in out, out
     # what a default-profile process listens on: the domain's ports only on 127.0.0.1
-    py = [sys.executable, PROBE, "listen", "4"]
+    py = [sys.executable, PROBE, "listen", "40"]
     p = subprocess.Popen(py, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
-    try:
-        time.sleep(2.5)
+    base = 7400 + 250 * domain
+
+    def listening() -> tuple[list[str], list[str]]:
         ss = subprocess.run(["ss", "-ulpnH"], capture_output=True, text=True, timeout=10).stdout
+        mine = [line.split()[3] for line in ss.splitlines() if f"pid={p.pid}," in line]
+        return mine, [a for a in mine if base <= int(a.rsplit(":", 1)[1]) < base + 250
+                      or a.endswith(":7000") or a.endswith(":7001")]
+
+    deadline = time.monotonic() + 30  # until the participant is up (a loaded machine imports rclpy slowly)
+    try:
+        while not listening()[1] and time.monotonic() < deadline and p.poll() is None:
+            time.sleep(0.25)
+        time.sleep(1.0)  # the participant opens its sockets together; give the rest a moment
+        mine, domain_ports = listening()
     finally:
         p.kill()
         p.wait(timeout=10)
-    mine = [line.split()[3] for line in ss.splitlines() if f"pid={p.pid}," in line]
-    base = 7400 + 250 * domain
-    domain_ports = [a for a in mine if base <= int(a.rsplit(":", 1)[1]) < base + 250 or a.endswith(":7000")
-                    or a.endswith(":7001")]
     assert domain_ports, mine
     assert all(a.startswith("127.0.0.1:") for a in domain_ports), mine
 
