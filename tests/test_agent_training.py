@@ -239,21 +239,27 @@ def test_demonstrator_sees_what_the_learners_see_and_targets_loaded_agents_near_
     assert wanted.any() and not wanted[1::2].any()
 
 
+def _loss_batch(T: int, B: int, gen: torch.Generator, **fields) -> dict[str, torch.Tensor]:
+    """A batch for policy_losses (the cpu network's shapes): random observations, actions,
+    returns and advantages, every action valid and every step free unless ``fields`` say otherwise."""
+    return {
+        "obs": torch.rand(T, B, 8, 11, 11, generator=gen), "extra": torch.zeros(T, B, 4),
+        "h0": torch.zeros(1, B, 64), "c0": torch.zeros(1, B, 64),
+        "actions": torch.randint(0, 5, (T, B), generator=gen), "logp": torch.full((T, B), -1.6),
+        "train_mask": torch.ones(T, B, 5, dtype=torch.bool), "any_valid": torch.ones(T, B),
+        "loss_mask": torch.ones(T, B), "value_mask": torch.ones(T, B), "returns": torch.rand(T, B, generator=gen),
+        "advantages": torch.rand(T, B, generator=gen), **fields,
+    }
+
+
 def test_imitation_loss_is_the_cross_entropy_of_the_demonstrators_actions():
     torch.manual_seed(0)
     cfg = make_config("cpu", imitate="csaf11", imitation_coef=0.5)
     net = ForMICNet(NETWORK_PRESETS["cpu"])
     T, B = 3, 4
     gen = torch.Generator().manual_seed(1)
-    batch = {
-        "obs": torch.rand(T, B, 8, 11, 11, generator=gen), "extra": torch.zeros(T, B, 4),
-        "h0": torch.zeros(1, B, 64), "c0": torch.zeros(1, B, 64),
-        "actions": torch.randint(0, 5, (T, B), generator=gen), "logp": torch.full((T, B), -1.6),
-        "train_mask": torch.ones(T, B, 5, dtype=torch.bool), "any_valid": torch.ones(T, B),
-        "loss_mask": torch.ones(T, B), "value_mask": torch.ones(T, B), "returns": torch.zeros(T, B),
-        "advantages": torch.zeros(T, B), "expert_actions": torch.randint(0, 5, (T, B), generator=gen),
-        "imitation_mask": torch.tensor([[1.0, 0, 1, 0]] * T),
-    }
+    batch = _loss_batch(T, B, gen, expert_actions=torch.randint(0, 5, (T, B), generator=gen),
+                        imitation_mask=torch.tensor([[1.0, 0, 1, 0]] * T))
     terms = policy_losses(net, cfg, batch)
     logits, _, _ = net(batch["obs"], (batch["h0"], batch["c0"]), batch["extra"])
     ce = torch.nn.functional.cross_entropy(logits[:, [0, 2]].reshape(-1, 5), batch["expert_actions"][:, [0, 2]].reshape(-1))
@@ -273,14 +279,7 @@ def test_queued_steps_train_the_critic_only_with_queued_value_loss(queued_value_
     gen = torch.Generator().manual_seed(2)
     loss_mask = torch.tensor([[1.0, 1, 0], [0, 1, 1], [1, 0, 1], [1, 1, 1]])  # 0: the agent is queued
     value_mask = torch.tensor([[1.0, 1, 1], [1, 1, 1], [1, 1, 0], [1, 1, 1]])
-    batch = {
-        "obs": torch.rand(T, B, 8, 11, 11, generator=gen), "extra": torch.zeros(T, B, 4),
-        "h0": torch.zeros(1, B, 64), "c0": torch.zeros(1, B, 64),
-        "actions": torch.randint(0, 5, (T, B), generator=gen), "logp": torch.full((T, B), -1.6),
-        "train_mask": torch.ones(T, B, 5, dtype=torch.bool), "any_valid": torch.ones(T, B),
-        "loss_mask": loss_mask, "value_mask": value_mask, "returns": torch.rand(T, B, generator=gen),
-        "advantages": torch.rand(T, B, generator=gen),
-    }
+    batch = _loss_batch(T, B, gen, loss_mask=loss_mask, value_mask=value_mask)
     terms = policy_losses(net, cfg, batch)
     _, values, _ = net(batch["obs"], (batch["h0"], batch["c0"]), batch["extra"])
     err = 0.5 * (values - batch["returns"]) ** 2
@@ -300,13 +299,7 @@ def test_join_validity_loss_is_the_bce_of_the_join_logit_on_free_steps():
     train_mask = torch.ones(T, B, 5, dtype=torch.bool)
     train_mask[..., 4] = torch.tensor([[True, False, False, True], [False, False, True, False], [True, True, False, False]])
     loss_mask = torch.tensor([[1.0, 1, 0, 1], [1, 0, 1, 1], [1, 1, 1, 0]])
-    batch = {
-        "obs": torch.rand(T, B, 8, 11, 11, generator=gen), "extra": torch.zeros(T, B, 4),
-        "h0": torch.zeros(1, B, 64), "c0": torch.zeros(1, B, 64),
-        "actions": torch.randint(0, 5, (T, B), generator=gen), "logp": torch.full((T, B), -1.6),
-        "train_mask": train_mask, "any_valid": torch.ones(T, B), "loss_mask": loss_mask,
-        "value_mask": torch.ones(T, B), "returns": torch.zeros(T, B), "advantages": torch.rand(T, B, generator=gen),
-    }
+    batch = _loss_batch(T, B, gen, train_mask=train_mask, loss_mask=loss_mask)
     terms = policy_losses(net, make_config("cpu", valid_join_coef=0.5), batch)
     logits, _, _ = net(batch["obs"], (batch["h0"], batch["c0"]), batch["extra"])
     bce = torch.nn.functional.binary_cross_entropy_with_logits(logits[..., 4], train_mask[..., 4].float(), reduction="none")
