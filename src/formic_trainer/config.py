@@ -42,9 +42,9 @@ class TrainConfig:
     # every loss term). With the paper's lambda=1 returns the values inside a queue never enter
     # an advantage; with GAE (lambda<1, the cpu preset) every queued step's value does, with
     # weight gamma*(1-lambda), and an untrained critic reads ~0 there (measured at 128 agents:
-    # -0.01 against a true return of +0.38), so a JOIN's advantage loses most of the deposit
-    # that follows it and the policy learns not to queue in crowds. The policy and valid-action
-    # terms stay masked on queued steps either way.
+    # -0.01 against a true return of +0.38), so a JOIN's advantage loses part of the deposit
+    # that follows it. Fixed, it did not change the 128-agent food (models/formic_paper.md). The
+    # policy and valid-action terms stay masked on queued steps either way.
     queued_value_loss: bool = False
     entropy_coef: float = 0.01
     valid_coef: float = 0.5
@@ -63,7 +63,8 @@ class TrainConfig:
     # preset, which leaves JOIN to the policy gradient: see valid_actions). For a trained
     # policy: at 128 agents the shipped model JOINs on 44% of the steps where a loaded agent
     # may (91% at 16 agents), and a cache-entry mark in the observation is not a valid JOIN on
-    # a quarter of them (the entry cell is taken). 0 = off.
+    # a quarter of them (the entry cell is taken). Measured: agents then queue less, not more
+    # (JOIN is valid on a few percent of steps, and the base rate wins). 0 = off.
     valid_join_coef: float = 0.0
     # With action_filter="mask": also mask JOIN when invalid (True), or let agents try JOIN
     # anywhere as at test time, where a JOIN with no queue in reach wastes the step (False).
@@ -115,8 +116,9 @@ class TrainConfig:
     rewards: Literal["paper", "reference"] = "paper"  # a formic_world.REWARD_PRESETS name (SPEC §4)
     # Single rewards replacing the preset's (beyond the paper): "deposit=10,blocked=-0.5", fields
     # of formic_world.RewardConfig. Measured (models/formic_paper.md): with the paper's table loaded
-    # agents queue twice as much as with the reference code's (deposit +10 against +5) but agents
-    # that have unloaded hold the docks longer (a blocked step costs -0.05 against -0.5).
+    # agents queue up to twice as much as with the reference code's, but agents that have unloaded
+    # hold the docks longer (a blocked step costs -0.05 against -0.5); the deposit's pay alone
+    # (deposit=10 on the reference rewards) does not make them queue more.
     reward_overrides: str = ""
     pheromones: bool = True  # False: train (and test) without pheromones
     curriculum: bool = True
