@@ -53,7 +53,7 @@ class CrowdCounter:
             was_crowd, pos, could_join_cache, could_join_resource = self.before
             self.sums["crowd_moving"] += float(((world.pos != pos).any(axis=1) & was_crowd).sum())
             self.sums["cache_join"] += float((could_join_cache & cache_queued).sum())
-            self.sums["resource_join"] += float((could_join_resource & world.queued & ~(world.queue_of < 4)).sum())
+            self.sums["resource_join"] += float((could_join_resource & (world.queue_of >= 4)).sum())
             for key, mask in (("crowd", was_crowd), ("could_join_cache", could_join_cache),
                               ("could_join_resource", could_join_resource)):
                 self.denominators[key] += int(mask.sum())
@@ -61,7 +61,7 @@ class CrowdCounter:
         self.sums["in_cache_queues"] += float(cache_queued.sum())
         self.sums["docks_held"] += float(len(held))
         self.steps += 1
-        can_join = world.action_mask()[:, 4] & ~world.queued
+        can_join = world.last_result.action_mask[:, 4] & ~world.queued  # the mask the step just computed
         self.before = (crowd, world.pos.copy(), can_join & world.carrying, can_join & ~world.carrying)
 
     def table(self) -> dict[str, float]:
