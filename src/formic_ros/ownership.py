@@ -23,7 +23,7 @@ from formic_interfaces.msg import ActionBatch
 from std_msgs.msg import String
 
 from . import qos
-from .graph import recorders_matched
+from .graph import RecorderReports, recorders_matched
 from .wire import read
 
 GRAPH_REFRESH_S = 2.0  # a per-agent topic's publishers are re-read at most this often
@@ -46,6 +46,7 @@ class Claim:
         self.publishers = list(publishers)
         self.confirmed_at: float | None = None  # when the world first bound an agent to this claim
         self.recorders = 0  # how many recorders the world waits for (from ``owners``)
+        self.recorder_reports = RecorderReports(node)
         self._ready, self._checked_at = False, -np.inf
         self.publisher = node.create_publisher(String, qos.CLAIMS, qos.LATCHED)
         self.publisher.publish(String(data=json.dumps({"owner": node.get_fully_qualified_name(), "token": self.token,
@@ -74,7 +75,7 @@ class Claim:
             return self._ready
         self._checked_at = now
         self._ready = (all(p.get_subscription_count() for p in self.publishers)  # the world hears us
-                       and recorders_matched(self.node, self.publishers, self.recorders))
+                       and recorders_matched(self.node, self.publishers, self.recorders, self.recorder_reports))
         if not self._ready and now - self.confirmed_at > RECORDER_WAIT_S:
             self.node.get_logger().warning(f"the recorder has not matched this node's action topics after "
                                            f"{RECORDER_WAIT_S:g} s: answering anyway (the recording misses them)")

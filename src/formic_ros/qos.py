@@ -30,6 +30,7 @@ ROLLOUTS = "rollouts"  # learning hosts -> trainer
 WEIGHTS = "weights"  # trainer -> learning hosts
 CLAIMS = "claims"  # driver nodes -> world: the agents each drives (formic_ros.ownership)
 OWNERS = "owners"  # world -> driver nodes: who drives which agent
+RECORDER_MATCHES = "recorder_matches"  # recorders -> world and drivers: what each recorder's readers matched
 
 NO_ACTION_WIRE = 255  # an applied action that did not arrive in time (ActionBatch.actions)
 
@@ -88,6 +89,7 @@ TOPICS: dict[str, Topic] = {
     WEIGHTS: Topic(_FORMIC + "Weights", LATCHED),
     CLAIMS: Topic("std_msgs/msg/String", LATCHED),
     OWNERS: Topic("std_msgs/msg/String", LATCHED),
+    RECORDER_MATCHES: Topic("std_msgs/msg/String", LATCHED),
 }
 # The world's topics, which a recorder subscribes to at once (the rest it discovers).
 WORLD_TOPICS = (SCENARIO, SUMMARY, STATE, APPLIED_ACTIONS, OBSERVATIONS, ACTIONS, SCORE, MAP, AGENT_MARKERS, CLOCK)

@@ -3,7 +3,8 @@
 The recorder node writes every ForMIC topic (and ``/clock``) into a rosbag2 recording with MCAP
 storage, as the CDR bytes that arrived (``raw=True``: nothing is decoded on the hot path): the
 world's topics from the start and the per-agent ones once the scenario names the team, so the
-world can wait for the recorder (:func:`formic_ros.graph.recorders_matched`) before it steps;
+world can wait for the recorder (:func:`formic_ros.graph.recorders_matched`) before it steps,
+on the recorder's own report of what its readers have matched (``recorder_matches``);
 anything else in the namespace once the graph shows a publisher, with the QoS it offers. The
 latched scenario description becomes the recording's run description (seed, scenario,
 configuration digest, policies, model checkpoint id, package version). A stop signal closes the
@@ -17,22 +18,26 @@ import importlib
 import json
 import os
 import time
+import uuid
 from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 
 from rclpy.duration import Duration
+from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
+from std_msgs.msg import String
 
 from formic_record.bag import BagWriter, package_version
 from formic_record.reading import Recording
 
 from . import qos as topics
-from .graph import RECORDER_NODE
+from .graph import RECORDER_NODE, recorder_report
 
 DISCOVERY_PERIOD_S = 0.2
+REPORT_PERIOD_S = 0.02  # a changed match count is reported within this long
 STREAM_DEPTH = 100  # the depth recorded for (and replayed with) stream topics
 SCENARIO_TYPE = topics.TOPICS[topics.SCENARIO].msgtype
 
@@ -118,6 +123,10 @@ class Recorder(Node):
         self.counts: Counter = Counter()
         self.skipped: dict[str, str] = {}
         self._recorded: dict[str, object] = {}
+        self._report_due = True  # a reader matched or lost a publisher since the last report
+        self.recorder_id = f"{self.get_fully_qualified_name()}#{os.getpid()}-{uuid.uuid4().hex[:8]}"
+        self.report_pub = self.create_publisher(String, topics.RECORDER_MATCHES, topics.LATCHED)
+        self.create_timer(REPORT_PERIOD_S, self._report)
         run_info = {"package_version": package_version()}
         if options.checkpoint_id:
             run_info["checkpoint_id"] = options.checkpoint_id
@@ -146,6 +155,8 @@ class Recorder(Node):
         if self.options.topics:
             return name in self.options.topics
         namespace = self.options.namespace.rstrip("/")
+        if name == topics.full_name(namespace, topics.RECORDER_MATCHES):
+            return False  # the recorders' own bookkeeping, not part of the run
         return name == topics.CLOCK or name.startswith(namespace + "/")
 
     def _discover(self) -> None:
@@ -171,8 +182,19 @@ class Recorder(Node):
         self.writer.add_topic(name, msgtype, [to_bag_qos(profile)])
         self._recorded[name] = self.create_subscription(
             cls, name, lambda data, name=name, msgtype=msgtype: self._on_message(name, msgtype, data),
-            profile, raw=True,
+            profile, raw=True, event_callbacks=SubscriptionEventCallbacks(matched=self._on_matched),
         )
+        self._report_due = True
+
+    def _on_matched(self, _status) -> None:
+        self._report_due = True
+
+    def _report(self) -> None:
+        """Publish what every reader has matched (reader side: a writer that counts this
+        recorder as matched may not be matched by it yet), when that changed."""
+        if self._report_due:
+            self._report_due = False
+            self.report_pub.publish(recorder_report(self.recorder_id, self._recorded.values()))
 
     def _on_message(self, topic: str, msgtype: str, data: bytes) -> None:
         self.writer.write(topic, time.time_ns(), data)

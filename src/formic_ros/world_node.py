@@ -28,7 +28,7 @@ from formic_agent.policy import AgentBatch
 from formic_runtime.episode import EpisodeStats
 from formic_world import Scenario, StepResult, World
 
-from .graph import recorders_present, wait_for_recorders
+from .graph import RecorderReports, recorders_present, wait_for_recorders
 from . import convert, qos, viewer_msgs
 from .lockstep import Lockstep, RateLimitedLog
 from .ownership import Ownership, batch_of
@@ -86,6 +86,7 @@ class WorldNode(Node):
         self.action_topics = [sub(AgentAction, qos.agent_topic(a, qos.AGENT_ACTION), qos.STREAM,
                                   lambda m, a=a: self._on_agent_action(a, m)).topic_name for a in range(n)]
         self.ownership = Ownership(self, lambda msg, topic: self.inbox.offer(*batch_of(msg), topic, topic), sub)
+        self.recorder_reports = RecorderReports(self)
         self._listening, self._listening_at = [], -np.inf
         self.view = None  # the live view, fed after each step (formic_view; no ROS involved)
         if options.view_port is not None:
@@ -188,7 +189,8 @@ class WorldNode(Node):
         self.ownership.expect_recorders(expected)
         publishers = [self.scenario_pub, self.summary_pub, self.state_pub, self.applied_pub, self.observations_pub,
                       self.score_pub, self.clock_pub, self.map_pub, self.markers_pub, *self.agent_obs_pubs]
-        if expected and not wait_for_recorders(self, executor, publishers, expected, self.options.startup_timeout_s):
+        if expected and not wait_for_recorders(self, executor, publishers, expected, self.recorder_reports,
+                                                   self.options.startup_timeout_s):
             self.get_logger().warning("the recorder has not matched every topic; starting anyway")
         self._listening_at = -np.inf  # re-read the per-agent listeners: the recorder is one
 
