@@ -21,11 +21,10 @@ from pathlib import Path
 import click
 import numpy as np
 
+from formic_cli.options import probe_options, stored_teams
 from formic_runtime.episode import run_episode
 from formic_runtime.threads import configure_threads
 from formic_world.geometry import nest_centre
-from formic_world.scenario import ScenarioError
-from formic_world.scenario_sets import first_stored
 
 MEASURES = ("crowd", "in_cache_queues", "docks_held", "crowd_moving", "cache_join", "resource_join")
 SHARES = {"crowd_moving": "crowd", "cache_join": "could_join_cache", "resource_join": "could_join_resource"}
@@ -71,13 +70,7 @@ class CrowdCounter:
 
 
 @click.command()
-@click.option("--policies", default="formic,csaf11", show_default=True)
-@click.option("--model", type=click.Path(exists=True, dir_okay=False), help="Checkpoint of the formic policy.")
-@click.option("--scenarios", "scenario_dir", default="eval/readme/scenarios", show_default=True,
-              type=click.Path(exists=True, file_okay=False))
-@click.option("--size", default=128, show_default=True)
-@click.option("--teams", default="64,128", show_default=True)
-@click.option("--count", default=4, show_default=True, help="Scenarios per team size (the first, by name).")
+@probe_options(policies="formic,csaf11", teams="64,128")
 @click.option("--steps", default=1024, show_default=True)
 @click.option("--radius", default=8, show_default=True, help="Cells from the nest centre that count as its crowd.")
 @click.option("--out", type=click.Path(dir_okay=False), help="Also write the table here as JSON.")
@@ -85,11 +78,7 @@ def main(policies, model, scenario_dir, size, teams, count, steps, radius, out) 
     """Mean per step: carrying agents crowding the nest, agents queued at it, docks held."""
     configure_threads()
     results = []
-    for team in (int(t) for t in teams.split(",")):
-        try:
-            scenarios = first_stored(Path(scenario_dir), size, team, count)
-        except ScenarioError as exc:
-            raise click.ClickException(str(exc)) from exc
+    for team, scenarios in stored_teams(scenario_dir, size, teams, count):
         for policy in policies.split(","):
             rows = []
             for scenario in scenarios:

@@ -24,10 +24,9 @@ from pathlib import Path
 import click
 import numpy as np
 
+from formic_cli.options import probe_options, stored_teams
 from formic_runtime.episode import run_episode
 from formic_runtime.threads import configure_threads
-from formic_world.scenario import ScenarioError
-from formic_world.scenario_sets import first_stored
 
 KINDS = ("up", "down", "off", "level")
 
@@ -78,13 +77,7 @@ class TrailCounter:
 
 
 @click.command()
-@click.option("--policies", default="formic,csaf11,random", show_default=True)
-@click.option("--model", type=click.Path(exists=True, dir_okay=False), help="Checkpoint of the formic policy.")
-@click.option("--scenarios", "scenario_dir", default="eval/readme/scenarios", show_default=True,
-              type=click.Path(exists=True, file_okay=False))
-@click.option("--size", default=128, show_default=True)
-@click.option("--teams", default="32,64", show_default=True)
-@click.option("--count", default=4, show_default=True, help="Scenarios per team size (the first, by name).")
+@probe_options(policies="formic,csaf11,random", teams="32,64")
 @click.option("--steps", type=int, help="Steps per episode (default: the scenario's).")
 @click.option("--threshold", default=0.05, show_default=True, help="Pheromone that makes a cell part of a trail.")
 @click.option("--out", type=click.Path(dir_okay=False), help="Also write the table here as JSON.")
@@ -92,11 +85,7 @@ def main(policies, model, scenario_dir, size, teams, count, steps, threshold, ou
     """Share of moves up / down the pheromone gradient on trails, loaded and empty agents."""
     configure_threads()
     results = []
-    for team in (int(t) for t in teams.split(",")):
-        try:
-            scenarios = first_stored(Path(scenario_dir), size, team, count)
-        except ScenarioError as exc:
-            raise click.ClickException(str(exc)) from exc
+    for team, scenarios in stored_teams(scenario_dir, size, teams, count):
         for policy in policies.split(","):
             counter = TrailCounter(threshold)
             food = []

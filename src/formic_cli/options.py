@@ -163,3 +163,33 @@ hosts_network_option = click.option(
     "--hosts-network", is_flag=True, expose_value=False, is_eager=True, callback=_hosts_network,
     help="DDS on every network interface (default: loopback only) for nodes on several machines; this "
          "exposes the domain's UDP ports to anyone on the network, with no DDS security (docs/ros.md).")
+
+
+def probe_options(policies: str, teams: str):
+    """The options of the measuring scripts (``scripts/nest_crowding.py``,
+    ``scripts/trail_following.py``): which policies, the model, and the first stored scenarios
+    per team size (:func:`stored_teams`)."""
+    return option_group(
+        click.option("--policies", default=policies, show_default=True),
+        click.option("--model", type=click.Path(exists=True, dir_okay=False), help="Checkpoint of the formic policy."),
+        click.option("--scenarios", "scenario_dir", default="eval/readme/scenarios", show_default=True,
+                     type=click.Path(exists=True, file_okay=False)),
+        click.option("--size", default=128, show_default=True),
+        click.option("--teams", default=teams, show_default=True),
+        click.option("--count", default=4, show_default=True, help="Scenarios per team size (the first, by name)."),
+    )
+
+
+def stored_teams(scenario_dir: str, size: int, teams: str, count: int):
+    """``(team size, its first count stored scenarios)`` for each of the comma-separated ``teams``;
+    a missing or broken scenario set is a clean command-line error."""
+    from pathlib import Path
+
+    from formic_world.scenario import ScenarioError
+    from formic_world.scenario_sets import first_stored
+
+    for team in (int(t) for t in teams.split(",")):
+        try:
+            yield team, first_stored(Path(scenario_dir), size, team, count)
+        except ScenarioError as exc:
+            raise click.ClickException(str(exc)) from exc

@@ -42,7 +42,7 @@ def sample_scenarios(cfg: TrainConfig, rng: np.random.Generator,
         highway, deposit = curriculum_intensities(episode, cfg.curriculum_start, cfg.curriculum_end)
     else:
         highway, deposit = 0.0, 1.0
-    scenarios = []
+    scenarios, rewards = [], reward_config(cfg)
     for team, (lo, hi) in zip(cfg.teams, cfg.world_sizes):
         side = 2 * int(rng.integers(lo // 2, hi // 2 + 1))
         config = WorldConfig(
@@ -51,7 +51,7 @@ def sample_scenarios(cfg: TrainConfig, rng: np.random.Generator,
             episode_steps=cfg.episode_steps, view_size=cfg.view_size,
             highway_intensity=highway, deposit_strength=deposit,
             pheromones_visible=cfg.pheromones, training_start=cfg.training_start,
-            training_filter=cfg.training_filter, rewards=reward_config(cfg),
+            training_filter=cfg.training_filter, rewards=rewards,
         )
         scenarios.append(generate_scenario(config, int(rng.integers(2**31))))
     return scenarios, highway, deposit
