@@ -109,10 +109,9 @@ def advantages_and_returns(cfg: TrainConfig, rewards, values, next_value) -> tup
     return adv, adv + values
 
 
-def update(net: ForMICNet, optimizer: torch.optim.Optimizer, cfg: TrainConfig, data: dict[str, np.ndarray],
-           rng: np.random.Generator) -> dict[str, float]:
-    """One update from a rollout chunk: the same function serves the in-process trainer and
-    the ROS trainer node. ``data`` arrays are time-major (T, B, ...)."""
+def update_tensors(cfg: TrainConfig, data: dict[str, np.ndarray]) -> dict[str, torch.Tensor]:
+    """A rollout chunk (``data``, time-major (T, B, ...)) as the loss reads it, with its
+    (normalised) advantages and returns."""
     adv, returns = advantages_and_returns(cfg, data["rewards"], data["values"], data["next_value"])
     tensors = {
         "obs": torch.from_numpy(data["obs"]),
@@ -137,6 +136,14 @@ def update(net: ForMICNet, optimizer: torch.optim.Optimizer, cfg: TrainConfig, d
         mean = masked_mean(adv_t, m)
         adv_t = (adv_t - mean) / (torch.sqrt(masked_mean((adv_t - mean) ** 2, m)) + 1e-8)
     tensors["advantages"] = adv_t
+    return tensors
+
+
+def update(net: ForMICNet, optimizer: torch.optim.Optimizer, cfg: TrainConfig, data: dict[str, np.ndarray],
+           rng: np.random.Generator) -> dict[str, float]:
+    """One update from a rollout chunk: the same function serves the in-process trainer and
+    the ROS trainer node. ``data`` arrays are time-major (T, B, ...)."""
+    tensors = update_tensors(cfg, data)
     n_seq = tensors["obs"].shape[1]
     stats: dict[str, list[float]] = {}
     for _ in range(cfg.epochs):

@@ -1,0 +1,42 @@
+"""scripts/join_pressure.py: each loss term's first-order effect on P(JOIN) is what a small step
+down that term's gradient really does."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from formic_agent.checkpoint import load_network
+from formic_cli.options import training_config
+from formic_trainer.algorithm import update_data, update_tensors
+from scripts.join_pressure import CONTROL, effects, join_probability_gradient, rollout_chunks, term_gradients
+
+SMALL = ("teams=8", "world_sizes=20-20", "episode_steps=96", "rollout_steps=48")
+
+
+def test_each_terms_effect_is_the_change_a_small_step_makes():
+    torch.manual_seed(0)
+    cfg = training_config("cpu", None, CONTROL + SMALL)
+    net, _ = load_network("models/formic_paper.pt")
+    batches = [update_tensors(cfg, update_data(cfg, c)) for c in rollout_chunks(cfg, net, episodes=1)]
+    p_join, states, direction = join_probability_gradient(net, batches)
+    assert states > 0 and 0.0 < p_join < 1.0
+    grads = term_gradients(cfg, net, batches)
+    predicted = effects(grads, direction)
+    assert predicted["all"] == pytest.approx(sum(predicted[t] for t in ("policy", "entropy", "valid", "value")))
+    params = list(net.parameters())
+    original = [p.detach().clone() for p in params]
+    def probability_after(step: float, term: str) -> float:
+        with torch.no_grad():
+            for p, o, g in zip(params, original, grads[term]):
+                p.copy_(o - step * g)
+        moved, _, _ = join_probability_gradient(net, batches)
+        with torch.no_grad():
+            for p, o in zip(params, original):
+                p.copy_(o)
+        return moved
+
+    for term in ("valid", "policy"):
+        step = 1e-3 / sum(float((g * g).sum()) for g in grads[term]) ** 0.5  # a parameter change of length 1e-3
+        change = (probability_after(step, term) - probability_after(-step, term)) / 2  # central: second order cancels
+        assert change == pytest.approx(step * predicted[term], rel=0.02)
