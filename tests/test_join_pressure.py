@@ -37,6 +37,6 @@ def test_each_terms_effect_is_the_change_a_small_step_makes():
         return moved
 
     for term in ("valid", "policy"):
-        step = 1e-3 / sum(float((g * g).sum()) for g in grads[term]) ** 0.5  # a parameter change of length 1e-3
+        step = 1e-4 / sum(float((g * g).sum()) for g in grads[term]) ** 0.5  # a parameter change of length 1e-4
         change = (probability_after(step, term) - probability_after(-step, term)) / 2  # central: second order cancels
         assert change == pytest.approx(step * predicted[term], rel=0.02)
