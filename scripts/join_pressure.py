@@ -6,7 +6,9 @@ updating, takes each loss term's gradient over the chunks and its first-order ef
 probability of JOIN over the free steps where JOIN is valid: ``-grad(term) . grad(P)`` per unit
 step for a plain gradient step, and with ``--optimizer-state`` (a run's ``latest.pt``) also for
 an Adam step preconditioned by that run's second moments (momentum left out). The terms add up:
-the ``all`` row is their sum.
+the ``all`` row is their sum. With ``--split`` each effect is also split by the steps its
+gradient comes from: where JOIN is valid, where it was tried and is not, where a move was chosen
+and JOIN is not valid (the three add up to the whole).
 
 Usage: .venv/bin/python scripts/join_pressure.py --model models/formic_paper.pt \
            --optimizer-state models/training/paper-sharp2/latest.pt [--set valid_coef=0.1]
@@ -52,15 +54,33 @@ def rollout_chunks(cfg, net, episodes: int) -> list[dict[str, np.ndarray]]:
     return chunks
 
 
-def term_gradients(cfg, net, batches) -> dict[str, list[torch.Tensor]]:
-    """Each weighted loss term's gradient (as it enters the loss), summed over the batches."""
+# Where a term's gradient comes from: the free steps of the rollout, split three ways.
+SOURCES = {
+    "JOIN valid": lambda b: b["train_mask"][..., 4],
+    "JOIN tried, invalid": lambda b: ~b["train_mask"][..., 4] & (b["actions"] == 4),
+    "move, JOIN invalid": lambda b: ~b["train_mask"][..., 4] & (b["actions"] != 4),
+}
+
+
+def term_gradients(cfg, net, batches, source=None) -> dict[str, list[torch.Tensor]]:
+    """Each weighted loss term's gradient (as it enters the loss), summed over the batches; with
+    ``source`` (a SOURCES entry) only the part that comes from those steps (the parts add up)."""
     params = list(net.parameters())
     weight = {"policy": 1.0, "entropy": -cfg.entropy_coef, "valid": cfg.valid_coef, "value": cfg.value_coef}
     sums = {name: [torch.zeros_like(p) for p in params] for name in TERMS}
     for batch in batches:
+        scale = dict.fromkeys(TERMS, 1.0)
+        if source is not None:
+            where = source(batch).float()
+            value_mask = batch["value_mask"] if cfg.queued_value_loss else batch["loss_mask"] * batch["value_mask"]
+            share = float((batch["loss_mask"] * where).sum() / batch["loss_mask"].sum().clamp(min=1.0))
+            scale = dict.fromkeys(TERMS, share)
+            scale["value"] = float((value_mask * where).sum() / value_mask.sum().clamp(min=1.0))
+            batch = dict(batch, loss_mask=batch["loss_mask"] * where, value_mask=batch["value_mask"] * where)
         terms = policy_losses(net, cfg, batch)
         for name in TERMS:
-            grads = torch.autograd.grad(weight[name] * terms[name], params, retain_graph=True, allow_unused=True)
+            grads = torch.autograd.grad(weight[name] * scale[name] * terms[name], params, retain_graph=True,
+                                        allow_unused=True)
             for total, g in zip(sums[name], grads):
                 if g is not None:
                     total += g
@@ -95,26 +115,33 @@ def effects(grads: dict[str, list[torch.Tensor]], direction: list[torch.Tensor],
 @click.option("--set", "overrides", multiple=True, help="Training config FIELD=VALUE over the control recipe.")
 @click.option("--optimizer-state", type=click.Path(exists=True, dir_okay=False),
               help="A run's checkpoint whose Adam second moments precondition the step.")
+@click.option("--split", is_flag=True, help="Also split each effect by the steps it comes from (SOURCES).")
 @click.option("--out", type=click.Path(dir_okay=False), help="Also write the result here as JSON.")
-def main(model, episodes, overrides, optimizer_state, out) -> None:
+def main(model, episodes, overrides, optimizer_state, split, out) -> None:
     torch.set_num_threads(1)
     cfg = training_config("cpu", None, CONTROL + tuple(overrides))
     net, _ = load_network(model)
     chunks = rollout_chunks(cfg, net, episodes)
     batches = [update_tensors(cfg, update_data(cfg, chunk)) for chunk in chunks]
     p_join, states, direction = join_probability_gradient(net, batches)
-    grads = term_gradients(cfg, net, batches)
-    result = {"model": model, "episodes": episodes, "overrides": list(overrides), "join_valid_steps": states,
-              "p_join": p_join, "plain": effects(grads, direction)}
+    precondition = None
     if optimizer_state:
         state = torch.load(optimizer_state, weights_only=True)["optimizer"]["state"]
         eps = 1e-5  # the cpu preset's Adam epsilon
-        result["adam"] = effects(grads, direction, [1.0 / (state[i]["exp_avg_sq"].sqrt() + eps)
-                                                    for i in range(len(direction))])
+        precondition = [1.0 / (state[i]["exp_avg_sq"].sqrt() + eps) for i in range(len(direction))]
+    result = {"model": model, "episodes": episodes, "overrides": list(overrides), "join_valid_steps": states,
+              "p_join": p_join}
     click.echo(f"{states} free steps where JOIN is valid, mean P(JOIN) {p_join:.3f}; first-order change per unit step:")
-    for name in (*TERMS, "all"):
-        adam = f"   Adam-preconditioned {result['adam'][name]:+.3e}" if "adam" in result else ""
-        click.echo(f"  {name:8s} plain {result['plain'][name]:+.3e}{adam}")
+    for label, source in (("all steps", None), *(SOURCES.items() if split else ())):
+        grads = term_gradients(cfg, net, batches, source)
+        row = {"plain": effects(grads, direction)}
+        if precondition is not None:
+            row["adam"] = effects(grads, direction, precondition)
+        result[label] = row
+        click.echo(f" from {label}:")
+        for name in (*TERMS, "all"):
+            adam = f"   Adam-preconditioned {row['adam'][name]:+.3e}" if "adam" in row else ""
+            click.echo(f"  {name:8s} plain {row['plain'][name]:+.3e}{adam}")
     if out:
         Path(out).write_text(json.dumps(result, indent=1))
 

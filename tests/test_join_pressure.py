@@ -9,9 +9,18 @@ import torch
 from formic_agent.checkpoint import load_network
 from formic_cli.options import training_config
 from formic_trainer.algorithm import update_data, update_tensors
-from scripts.join_pressure import CONTROL, effects, join_probability_gradient, rollout_chunks, term_gradients
+from scripts.join_pressure import CONTROL, SOURCES, effects, join_probability_gradient, rollout_chunks, term_gradients
 
 SMALL = ("teams=8", "world_sizes=20-20", "episode_steps=96", "rollout_steps=48")
+
+
+@pytest.fixture(autouse=True)
+def one_torch_thread():
+    """As the script runs (small batches: a second thread only contends, 80x slower on a busy machine)."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
 
 
 def test_each_terms_effect_is_the_change_a_small_step_makes():
@@ -40,3 +49,16 @@ def test_each_terms_effect_is_the_change_a_small_step_makes():
         step = 1e-4 / sum(float((g * g).sum()) for g in grads[term]) ** 0.5  # a parameter change of length 1e-4
         change = (probability_after(step, term) - probability_after(-step, term)) / 2  # central: second order cancels
         assert change == pytest.approx(step * predicted[term], rel=0.02)
+
+
+def test_the_effects_split_by_source_add_up_to_the_whole():
+    torch.manual_seed(0)
+    cfg = training_config("cpu", None, CONTROL + SMALL)
+    net, _ = load_network("models/formic_paper.pt")
+    batches = [update_tensors(cfg, update_data(cfg, c)) for c in rollout_chunks(cfg, net, episodes=1)]
+    _, _, direction = join_probability_gradient(net, batches)
+    whole = effects(term_gradients(cfg, net, batches), direction)
+    parts = [effects(term_gradients(cfg, net, batches, source), direction) for source in SOURCES.values()]
+    for term in whole:
+        assert sum(part[term] for part in parts) == pytest.approx(whole[term], rel=1e-4, abs=1e-9)
+    assert all(part["policy"] != 0.0 for part in parts), "every source contributes to the policy gradient"
