@@ -4,8 +4,9 @@ Stages are drawn one after the other on a common episode axis (a stage's episode
 where the previous one's ended), so a model trained in stages shows as one curve:
 
     .venv/bin/python scripts/learning_curves.py models/training/paper-ref models/training/paper-crowd \
-        models/training/paper-feedback models/training/paper-feedback-nonlearning \
-        --until paper-crowd=328 --until paper-feedback-nonlearning=208 --out models/formic_paper_curves.png
+        models/training/paper-feedback models/training/paper-feedback-nonlearning models/training/paper-novalid \
+        --until paper-crowd=328 --until paper-feedback-nonlearning=208 --until paper-novalid=496 \
+        --out models/formic_paper_curves.png
 
 With ``--overlay`` every run starts at episode 0 and the food panel shows each run's mean over
 its training worlds: runs of one recipe with one switch changed (the Table I ablations) side by side.
