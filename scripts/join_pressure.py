@@ -27,6 +27,7 @@ from formic_agent.checkpoint import load_network
 from formic_cli.options import training_config
 from formic_trainer.actor import Actor
 from formic_trainer.algorithm import policy_losses, update_data, update_tensors
+from formic_trainer.train import play_episode_set
 from formic_trainer.worlds import MetaAgents
 
 CONTROL = ("network=cpu-feedback", "seed=12", "rewards=reference", "training_filter=reference", "learning_agents=16",
@@ -35,23 +36,14 @@ CONTROL = ("network=cpu-feedback", "seed=12", "rewards=reference", "training_fil
 TERMS = ("policy", "entropy", "valid", "value")
 
 
-def rollout_chunks(cfg, net, episodes: int) -> list[dict[str, np.ndarray]]:
-    """The learners' rollout chunks of ``episodes`` episode sets, as the trainer's learner gets them."""
+def rollout_batches(cfg, net, episodes: int) -> list[dict[str, torch.Tensor]]:
+    """The learners' rollout chunks of ``episodes`` episode sets, as the learner's loss reads them."""
     envs = MetaAgents(cfg)
     actor = Actor(cfg, net, np.arange(envs.n_agents))
     chunks = []
     for episode in range(episodes):
-        envs.reset(episode)
-        actor.start_episode(episode)
-        frame = envs.observe()
-        for step in range(cfg.episode_steps):
-            actions = actor.act(frame)
-            rewards, _ = envs.step(actions)
-            actor.reward(rewards)
-            frame = envs.observe()
-            if len(actor) == cfg.rollout_steps or step + 1 == cfg.episode_steps:
-                chunks.append(actor.rollout(frame.obs, frame.extra))
-    return chunks
+        play_episode_set(cfg, envs, actor, episode, lambda rollout, _env_steps: chunks.append(rollout))
+    return [update_tensors(cfg, update_data(cfg, chunk)) for chunk in chunks]
 
 
 # Where a term's gradient comes from: the free steps of the rollout, split three ways.
@@ -121,8 +113,7 @@ def main(model, episodes, overrides, optimizer_state, split, out) -> None:
     torch.set_num_threads(1)
     cfg = training_config("cpu", None, CONTROL + tuple(overrides))
     net, _ = load_network(model)
-    chunks = rollout_chunks(cfg, net, episodes)
-    batches = [update_tensors(cfg, update_data(cfg, chunk)) for chunk in chunks]
+    batches = rollout_batches(cfg, net, episodes)
     p_join, states, direction = join_probability_gradient(net, batches)
     precondition = None
     if optimizer_state:

@@ -8,8 +8,7 @@ import torch
 
 from formic_agent.checkpoint import load_network
 from formic_cli.options import training_config
-from formic_trainer.algorithm import update_data, update_tensors
-from scripts.join_pressure import CONTROL, SOURCES, effects, join_probability_gradient, rollout_chunks, term_gradients
+from scripts.join_pressure import CONTROL, SOURCES, effects, join_probability_gradient, rollout_batches, term_gradients
 
 SMALL = ("teams=8", "world_sizes=20-20", "episode_steps=96", "rollout_steps=48")
 
@@ -23,11 +22,17 @@ def one_torch_thread():
     torch.set_num_threads(threads)
 
 
-def test_each_terms_effect_is_the_change_a_small_step_makes():
+@pytest.fixture
+def small_rollout():
+    """The shipped model's rollout of one episode in a small world, under the control recipe."""
     torch.manual_seed(0)
     cfg = training_config("cpu", None, CONTROL + SMALL)
     net, _ = load_network("models/formic_paper.pt")
-    batches = [update_tensors(cfg, update_data(cfg, c)) for c in rollout_chunks(cfg, net, episodes=1)]
+    return cfg, net, rollout_batches(cfg, net, episodes=1)
+
+
+def test_each_terms_effect_is_the_change_a_small_step_makes(small_rollout):
+    cfg, net, batches = small_rollout
     p_join, states, direction = join_probability_gradient(net, batches)
     assert states > 0 and 0.0 < p_join < 1.0
     grads = term_gradients(cfg, net, batches)
@@ -35,6 +40,7 @@ def test_each_terms_effect_is_the_change_a_small_step_makes():
     assert predicted["all"] == pytest.approx(sum(predicted[t] for t in ("policy", "entropy", "valid", "value")))
     params = list(net.parameters())
     original = [p.detach().clone() for p in params]
+
     def probability_after(step: float, term: str) -> float:
         with torch.no_grad():
             for p, o, g in zip(params, original, grads[term]):
@@ -51,11 +57,8 @@ def test_each_terms_effect_is_the_change_a_small_step_makes():
         assert change == pytest.approx(step * predicted[term], rel=0.02)
 
 
-def test_the_effects_split_by_source_add_up_to_the_whole():
-    torch.manual_seed(0)
-    cfg = training_config("cpu", None, CONTROL + SMALL)
-    net, _ = load_network("models/formic_paper.pt")
-    batches = [update_tensors(cfg, update_data(cfg, c)) for c in rollout_chunks(cfg, net, episodes=1)]
+def test_the_effects_split_by_source_add_up_to_the_whole(small_rollout):
+    cfg, net, batches = small_rollout
     _, _, direction = join_probability_gradient(net, batches)
     whole = effects(term_gradients(cfg, net, batches), direction)
     parts = [effects(term_gradients(cfg, net, batches, source), direction) for source in SOURCES.values()]

@@ -9,6 +9,7 @@ trainer node (:mod:`formic_ros.learning_host`, :mod:`formic_ros.trainer_node`).
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -40,23 +41,13 @@ class Trainer:
         """Every meta-agent world plays one episode; the learner updates every rollout chunk."""
         cfg, envs, actor, learner = self.cfg, self.envs, self.actor, self.learner
         started, cpu_started, episode = time.time(), time.process_time(), learner.episode
-        envs.reset(episode)
-        actor.start_episode(episode)
-        food = np.zeros(len(envs.worlds))
         stats: dict[str, list[float]] = {}
-        frame = envs.observe()
-        for step in range(cfg.episode_steps):
-            actions = actor.act(frame)
-            if cfg.imitate:
-                actor.demonstrate(*envs.demonstrations())
-            rewards, step_food = envs.step(actions)
-            food += step_food
-            actor.reward(rewards)
-            frame = envs.observe()
-            if len(actor) == cfg.rollout_steps or step + 1 == cfg.episode_steps:
-                env_steps = len(actor) * envs.n_agents
-                for key, value in learner.learn(actor.rollout(frame.obs, frame.extra), env_steps).items():
-                    stats.setdefault(key, []).append(value)
+
+        def learn(rollout: dict[str, np.ndarray], env_steps: int) -> None:
+            for key, value in learner.learn(rollout, env_steps).items():
+                stats.setdefault(key, []).append(value)
+
+        food = play_episode_set(cfg, envs, actor, episode, learn)
         result = {key: float(np.mean(values)) for key, values in stats.items()}
         result["food_mean"] = float(food.mean())
         result |= {f"food_env{i}": float(f) for i, f in enumerate(food)}
@@ -87,6 +78,28 @@ class Trainer:
 
     def close(self) -> None:
         self.learner.close()
+
+
+def play_episode_set(cfg: TrainConfig, envs: MetaAgents, actor: Actor, episode: int,
+                     on_rollout: Callable[[dict[str, np.ndarray], int], None]) -> np.ndarray:
+    """Every world plays episode ``episode``; each rollout chunk goes to ``on_rollout`` with the
+    agent-steps it stands for. Returns the food each world deposited."""
+    envs.reset(episode)
+    actor.start_episode(episode)
+    food = np.zeros(len(envs.worlds))
+    frame = envs.observe()
+    for step in range(cfg.episode_steps):
+        actions = actor.act(frame)
+        if cfg.imitate:
+            actor.demonstrate(*envs.demonstrations())
+        rewards, step_food = envs.step(actions)
+        food += step_food
+        actor.reward(rewards)
+        frame = envs.observe()
+        if len(actor) == cfg.rollout_steps or step + 1 == cfg.episode_steps:
+            env_steps = len(actor) * envs.n_agents
+            on_rollout(actor.rollout(frame.obs, frame.extra), env_steps)
+    return food
 
 
 def export_model(checkpoint: Path, out: Path) -> None:
