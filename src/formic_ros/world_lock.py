@@ -7,7 +7,7 @@ named after its network namespace, domain and ForMIC namespace for as long as it
 second world there stops at once with an error that names the first one's process.
 
 A file lock rather than a look at the ROS graph: the kernel drops it when its process dies,
-even by SIGKILL, so a restarted world never waits out a dead one's 20 s DDS lease, and it does
+even by SIGKILL, so a restarted world never waits out a dead one's DDS lease, and it does
 not depend on discovery having finished. It covers everything that can meet with the default
 loopback-only DDS (one machine and one network namespace); with ``FORMIC_DDS_NETWORK=hosts``
 worlds on other machines are not seen (docs/ros.md).
