@@ -47,21 +47,33 @@ results["writer_matched"] = spin_until(lambda: score.get_subscription_count() ==
 results["silent"] = spin_until(matched, 1.0)
 report = silent.create_publisher(String, qos.RECORDER_MATCHES, qos.LATCHED)
 report.publish(String(data="not json"))
-report.publish(String(data=json.dumps({"recorder": "silent", "publishers": {"/formic/score": 0}})))
+own_id = "/formic/recorder#1-silent"
+report.publish(String(data=json.dumps({"recorder": own_id, "publishers": {"/formic/score": 0}})))
 results["reports_none_matched"] = spin_until(matched, 1.0)
-report.publish(String(data=json.dumps({"recorder": "silent", "publishers": {"/formic/score": 1}})))
+report.publish(String(data=json.dumps({"recorder": "/elsewhere/recorder#2-x", "publishers": {"/formic/score": 1}})))
+results["another_nodes_report"] = spin_until(matched, 1.0)
+report.publish(String(data=json.dumps({"recorder": own_id, "publishers": {"/formic/score": 1}})))
 results["reports_matched"] = spin_until(matched, 5.0)
 executor.remove_node(silent)
 silent.destroy_node()
-reports.publishers.clear()
 results["silent_gone"] = spin_until(lambda: score.get_subscription_count() == 0)
+
+# Its report stays in the table (latched, no goodbye); a new silent recorder is not covered by it.
+again = rclpy.create_node("recorder", namespace="/formic")
+again.create_subscription(Float64, "score", lambda m: None, qos.LOG)
+executor.add_node(again)
+results["again_matched"] = spin_until(lambda: score.get_subscription_count() == 1)
+results["stale_report"] = spin_until(matched, 1.0)
+executor.remove_node(again)
+again.destroy_node()
+spin_until(lambda: score.get_subscription_count() == 0)
 
 # The real recorder: its report comes by itself, and is not recorded.
 writer = BagWriter(sys.argv[2])
 recorder = Recorder(writer, RecorderOptions())
 executor.add_node(recorder)
 results["recorder_matched"] = spin_until(matched)
-results["report"] = reports.publishers.get(recorder.recorder_id, {}).get("/formic/score")
+results["report"] = reports.reports[recorder.recorder_id][1].get("/formic/score")
 score.publish(Float64(data=1.5))
 spin_until(lambda: recorder.counts["/formic/score"] == 1, 5.0)
 results["counts"] = dict(recorder.counts)
@@ -82,6 +94,9 @@ def test_a_topic_is_recorded_only_once_the_recorder_reports_its_reader_matched(t
     assert results["writer_matched"], "the silent recorder's reader never matched"
     assert not results["silent"], "a writer-side match alone counted as recorded"
     assert not results["reports_none_matched"], "a report of 0 matched publishers counted as recorded"
+    assert not results["another_nodes_report"], "a report in the name of a node not in the graph counted"
+    assert results["silent_gone"] and results["again_matched"]
+    assert not results["stale_report"], "a departed recorder's report counted for a new one"
     assert results["reports_matched"] and results["recorder_matched"]
     assert results["report"] == 1
     assert results["counts"] == {"/formic/score": 1}, "the recorder recorded its own report or missed the score"

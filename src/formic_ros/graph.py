@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import time
+from collections import Counter
 
 from rclpy.node import Node
 from std_msgs.msg import String
@@ -29,33 +30,59 @@ def recorders_present(node: Node) -> int:
 
 
 def recorder_report(recorder: str, subscriptions) -> String:
-    """A recorder's report: ``{"recorder": its id, "publishers": {topic: publishers its reader
-    has matched}}`` over its rclpy ``subscriptions``."""
+    """A recorder's report: ``{"recorder": its id (its node's fully qualified name, ``#`` and a
+    token of its own), "publishers": {topic: publishers its reader has matched}}`` over its
+    rclpy ``subscriptions``."""
     return String(data=json.dumps({"recorder": recorder,
                                    "publishers": {s.topic_name: s.get_publisher_count() for s in subscriptions}}))
 
 
 class RecorderReports:
-    """The recorders' reports as ``node`` hears them: the latest per recorder."""
+    """The recorders' reports as ``node`` hears them: the latest per recorder, counted only while
+    that recorder is in the graph. A latched report outlives its sender in this table (a
+    SIGKILLed recorder says no goodbye), so a report counts only for a node that publishes
+    reports now (others are dropped when seen gone), and for a node name that several
+    processes have used, only as many of the newest reports as the graph shows such publishers
+    (each recorder reports at its start). Left open: a recorder restarted under the same name
+    between two looks, until its first report arrives."""
 
     def __init__(self, node: Node):
         self.node = node
-        self.publishers: dict[str, dict[str, int]] = {}  # recorder id -> topic -> publishers matched
-        node.create_subscription(String, qos.RECORDER_MATCHES, self._on_report, qos.reliable(100, latched=True))
+        # recorder id -> (its node's fully qualified name, topic -> publishers matched), oldest first
+        self.reports: dict[str, tuple[str, dict[str, int]]] = {}
+        self.subscription = node.create_subscription(String, qos.RECORDER_MATCHES, self._on_report,
+                                                     qos.reliable(100, latched=True))
 
     def _on_report(self, msg: String) -> None:
         try:
             report = json.loads(msg.data)
-            self.publishers[str(report["recorder"])] = {str(t): int(n) for t, n in report["publishers"].items()}
+            recorder = str(report["recorder"])
+            matched = {str(t): int(n) for t, n in report["publishers"].items()}
         except (ValueError, KeyError, TypeError, AttributeError):
             self.node.get_logger().warning(f"malformed report on {qos.RECORDER_MATCHES}: {msg.data[:80]!r}",
                                            throttle_duration_sec=10.0)
+            return
+        self.reports.pop(recorder, None)  # re-inserted last: the dict runs from oldest to newest
+        self.reports[recorder] = (recorder.split("#", 1)[0], matched)
 
     def confirming(self, topic: str) -> int:
-        """How many recorders report a reader on ``topic`` that has matched every publisher
-        this node's graph shows there (at least one)."""
+        """How many recorders in the graph report a reader on ``topic`` that has matched every
+        publisher this node's graph shows there (at least one)."""
         needed = max(1, self.node.count_publishers(topic))
-        return sum(matched.get(topic, 0) >= needed for matched in self.publishers.values())
+        live = Counter(_qualified(i.node_namespace, i.node_name)
+                       for i in self.node.get_publishers_info_by_topic(self.subscription.topic_name))
+        self.reports = {recorder: entry for recorder, entry in self.reports.items() if live[entry[0]] > 0}
+        confirmed = 0
+        for name, matched in reversed(self.reports.values()):
+            if live[name] > 0:
+                live[name] -= 1
+                confirmed += matched.get(topic, 0) >= needed
+        return confirmed
+
+
+def _qualified(namespace: str, name: str) -> str:
+    """A node's fully qualified name, as ``Node.get_fully_qualified_name`` writes it."""
+    return f"{namespace.rstrip('/')}/{name}"
 
 
 def recorders_matched(node: Node, publishers, expected: int, reports: RecorderReports) -> bool:
