@@ -123,10 +123,9 @@ class Recorder(Node):
         self.counts: Counter = Counter()
         self.skipped: dict[str, str] = {}
         self._recorded: dict[str, object] = {}
-        self._report_due = True  # a reader matched or lost a publisher since the last report
         self.recorder_id = f"{self.get_fully_qualified_name()}#{os.getpid()}-{uuid.uuid4().hex[:8]}"
         self.report_pub = self.create_publisher(String, topics.RECORDER_MATCHES, topics.LATCHED)
-        self.create_timer(REPORT_PERIOD_S, self._report)
+        self._report_timer = self.create_timer(REPORT_PERIOD_S, self._report)  # runs only while a report is due
         run_info = {"package_version": package_version()}
         if options.checkpoint_id:
             run_info["checkpoint_id"] = options.checkpoint_id
@@ -182,19 +181,21 @@ class Recorder(Node):
         self.writer.add_topic(name, msgtype, [to_bag_qos(profile)])
         self._recorded[name] = self.create_subscription(
             cls, name, lambda data, name=name, msgtype=msgtype: self._on_message(name, msgtype, data),
-            profile, raw=True, event_callbacks=SubscriptionEventCallbacks(matched=self._on_matched),
+            profile, raw=True, event_callbacks=SubscriptionEventCallbacks(matched=lambda _status: self._report_soon()),
         )
-        self._report_due = True
+        self._report_soon()
 
-    def _on_matched(self, _status) -> None:
-        self._report_due = True
+    def _report_soon(self) -> None:
+        """Report within REPORT_PERIOD_S: the matches that change meanwhile (a burst of readers
+        matching at start) go out in one report, and no timer runs while nothing changes."""
+        if self._report_timer.is_canceled():
+            self._report_timer.reset()
 
     def _report(self) -> None:
         """Publish what every reader has matched (reader side: a writer that counts this
-        recorder as matched may not be matched by it yet), when that changed."""
-        if self._report_due:
-            self._report_due = False
-            self.report_pub.publish(recorder_report(self.recorder_id, self._recorded.values()))
+        recorder as matched may not be matched by it yet)."""
+        self._report_timer.cancel()
+        self.report_pub.publish(recorder_report(self.recorder_id, self._recorded.values()))
 
     def _on_message(self, topic: str, msgtype: str, data: bytes) -> None:
         self.writer.write(topic, time.time_ns(), data)
