@@ -17,7 +17,7 @@ from rclpy.executors import SingleThreadedExecutor
 from std_msgs.msg import Float64, String
 from formic_record.bag import BagWriter
 from formic_ros import qos
-from formic_ros.graph import RecorderReports, recorders_matched
+from formic_ros.graph import REPORT_GRAPH_LAG_S, RecorderReports, recorders_matched
 from formic_ros.recorder import Recorder, RecorderOptions
 
 rclpy.init(domain_id=int(sys.argv[1]))
@@ -58,12 +58,13 @@ executor.remove_node(silent)
 silent.destroy_node()
 results["silent_gone"] = spin_until(lambda: score.get_subscription_count() == 0)
 
-# Its report stays in the table (latched, no goodbye); a new silent recorder is not covered by it.
+# Its report stays in the table (latched, no goodbye); a new silent recorder is not covered by it,
+# and once the report is older than the graph's lag it is dropped, so the next recorder reports itself.
 again = rclpy.create_node("recorder", namespace="/formic")
 again.create_subscription(Float64, "score", lambda m: None, qos.LOG)
 executor.add_node(again)
 results["again_matched"] = spin_until(lambda: score.get_subscription_count() == 1)
-results["stale_report"] = spin_until(matched, 1.0)
+results["stale_report"] = spin_until(matched, REPORT_GRAPH_LAG_S + 0.5)
 executor.remove_node(again)
 again.destroy_node()
 spin_until(lambda: score.get_subscription_count() == 0)

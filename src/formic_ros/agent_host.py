@@ -85,7 +85,7 @@ class AgentHost:
         self.control.create_subscription(ScenarioDescription, qos.SCENARIO, self._on_scenario, qos.LATCHED)
         if transport == "batched":
             self.control.create_subscription(ObservationBatch, qos.OBSERVATIONS, self._on_batch, qos.STREAM)
-            self.actions_pub = self.control.create_publisher(ActionBatch, f"~/{qos.ACTIONS}", qos.STREAM)
+            self.actions_pub = self.control.create_publisher(ActionBatch, f"~/{qos.ACTIONS}", qos.STREAM_WRITER)
             batched, publishers = self.actions_pub.topic_name, [self.actions_pub]
         else:
             self.action_pubs = {}
@@ -93,7 +93,7 @@ class AgentHost:
                 node = lean_node(qos.agent_node_name(a), namespace)
                 node.create_subscription(AgentObservation, f"~/{qos.AGENT_OBSERVATION}",
                                          lambda msg, a=a: self._on_agent_observation(a, msg), qos.LATEST)
-                self.action_pubs[a] = node.create_publisher(AgentAction, f"~/{qos.AGENT_ACTION}", qos.STREAM)
+                self.action_pubs[a] = node.create_publisher(AgentAction, f"~/{qos.AGENT_ACTION}", qos.STREAM_WRITER)
                 self.nodes.append(node)
             self.control.create_timer(PARTIAL_WAIT_S / 4, self._answer_late_step)
             batched, publishers = None, list(self.action_pubs.values())

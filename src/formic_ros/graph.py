@@ -21,6 +21,7 @@ from std_msgs.msg import String
 from . import qos
 
 RECORDER_NODE = "recorder"  # the node name of ``formic record`` (and the launcher's recorder)
+REPORT_GRAPH_LAG_S = 2.0  # a report whose sender the graph does not show is dropped only when older than this
 
 
 def recorders_present(node: Node) -> int:
@@ -39,17 +40,18 @@ def recorder_report(recorder: str, subscriptions) -> String:
 
 class RecorderReports:
     """The recorders' reports as ``node`` hears them: the latest per recorder, counted only while
-    that recorder is in the graph. A latched report outlives its sender in this table (a
-    SIGKILLed recorder says no goodbye), so a report counts only for a node that publishes
-    reports now (others are dropped when seen gone), and for a node name that several
-    processes have used, only as many of the newest reports as the graph shows such publishers
-    (each recorder reports at its start). Left open: a recorder restarted under the same name
-    between two looks, until its first report arrives."""
+    its sender publishes reports in the graph. A SIGKILLed recorder says no goodbye, and its
+    latched report stays here until a look finds its node gone REPORT_GRAPH_LAG_S after the
+    report came (ROS learns node names from a topic of its own, so a fresh report can come
+    before its sender's name). Processes that share a node name count with their newest reports,
+    as many as the graph shows such publishers (each recorder reports at its start). Left open: a
+    recorder restarted under a departed one's name, until its first report arrives."""
 
     def __init__(self, node: Node):
         self.node = node
         # recorder id -> (its node's fully qualified name, topic -> publishers matched), oldest first
         self.reports: dict[str, tuple[str, dict[str, int]]] = {}
+        self.received: dict[str, float] = {}  # recorder id -> when its latest report came (monotonic s)
         self.subscription = node.create_subscription(String, qos.RECORDER_MATCHES, self._on_report,
                                                      qos.reliable(100, latched=True))
 
@@ -64,6 +66,7 @@ class RecorderReports:
             return
         self.reports.pop(recorder, None)  # re-inserted last: the dict runs from oldest to newest
         self.reports[recorder] = (recorder.split("#", 1)[0], matched)
+        self.received[recorder] = time.monotonic()
 
     def confirming(self, topic: str) -> int:
         """How many recorders in the graph report a reader on ``topic`` that has matched every
@@ -71,7 +74,9 @@ class RecorderReports:
         needed = max(1, self.node.count_publishers(topic))
         live = Counter(_qualified(i.node_namespace, i.node_name)
                        for i in self.node.get_publishers_info_by_topic(self.subscription.topic_name))
-        self.reports = {recorder: entry for recorder, entry in self.reports.items() if live[entry[0]] > 0}
+        settled = time.monotonic() - REPORT_GRAPH_LAG_S
+        for recorder in [r for r, (name, _) in self.reports.items() if not live[name] and self.received[r] < settled]:
+            del self.reports[recorder], self.received[recorder]
         confirmed = 0
         for name, matched in reversed(self.reports.values()):
             if live[name] > 0:

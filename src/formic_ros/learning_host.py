@@ -146,7 +146,7 @@ class LearningHost:
         node.create_subscription(ScenarioDescription, qos.SCENARIO, self._on_scenario, qos.LATCHED)
         node.create_subscription(ObservationBatch, qos.OBSERVATIONS, self._on_batch, qos.STREAM)
         node.create_subscription(Weights, qos.WEIGHTS, self._on_weights, qos.LATCHED)
-        self.actions_pub = node.create_publisher(ActionBatch, f"~/{qos.ACTIONS}", qos.STREAM)
+        self.actions_pub = node.create_publisher(ActionBatch, f"~/{qos.ACTIONS}", qos.STREAM_WRITER)
         self.claim = Claim(node, list(self.ids), self.actions_pub.topic_name, publishers=[self.actions_pub])
         self.rollouts_pub = node.create_publisher(Rollout, qos.ROLLOUTS, qos.ROLLOUT)
         self.played = ""  # scenario of the episode being (or last) played

@@ -34,7 +34,7 @@ class PlannerNode(Node):
         super().__init__("planner", namespace=namespace)
         configure_threads()
         self.planner = make_policy("planner")
-        self.actions_pub = self.create_publisher(ActionBatch, f"~/{qos.ACTIONS}", qos.STREAM)
+        self.actions_pub = self.create_publisher(ActionBatch, f"~/{qos.ACTIONS}", qos.STREAM_WRITER)
         self.claim: Claim | None = None  # made when the team size is known
         self.create_subscription(ScenarioDescription, qos.SCENARIO, self._on_scenario, qos.LATCHED)
         self.create_subscription(ActionBatch, qos.APPLIED_ACTIONS, self._on_applied, qos.STREAM)

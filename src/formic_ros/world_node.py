@@ -72,14 +72,14 @@ class WorldNode(Node):
         pub = self.create_publisher
         self.scenario_pub = pub(ScenarioDescription, qos.SCENARIO, qos.LATCHED)
         self.summary_pub = pub(String, qos.SUMMARY, qos.LATCHED)
-        self.observations_pub = pub(ObservationBatch, qos.OBSERVATIONS, qos.STREAM)
+        self.observations_pub = pub(ObservationBatch, qos.OBSERVATIONS, qos.STREAM_WRITER)
         self.state_pub = pub(WorldState, qos.STATE, qos.LOG)
         self.applied_pub = pub(ActionBatch, qos.APPLIED_ACTIONS, qos.LOG)
         self.score_pub = pub(Float64, qos.SCORE, qos.LOG)
         self.clock_pub = pub(viewer_msgs.Clock, qos.CLOCK, qos.LOG)
         self.map_pub = pub(viewer_msgs.OccupancyGrid, qos.MAP, qos.VIEWER)
         self.markers_pub = pub(viewer_msgs.MarkerArray, qos.AGENT_MARKERS, qos.VIEWER)
-        self.agent_obs_pubs = [pub(AgentObservation, qos.agent_topic(a, qos.AGENT_OBSERVATION), qos.STREAM)
+        self.agent_obs_pubs = [pub(AgentObservation, qos.agent_topic(a, qos.AGENT_OBSERVATION), qos.STREAM_WRITER)
                                for a in range(n)]
         sub = functools.partial(convert.checked_subscription, self, on_malformed=self._on_malformed)
         self.actions_sub = sub(ActionBatch, qos.ACTIONS, qos.STREAM, self._on_action_batch)
