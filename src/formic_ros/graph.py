@@ -14,6 +14,7 @@ from __future__ import annotations
 import json
 import time
 from collections import Counter
+from typing import NamedTuple
 
 from rclpy.node import Node
 from std_msgs.msg import String
@@ -38,6 +39,14 @@ def recorder_report(recorder: str, subscriptions) -> String:
                                    "publishers": {s.topic_name: s.get_publisher_count() for s in subscriptions}}))
 
 
+class Report(NamedTuple):
+    """One recorder's latest report as a reader holds it."""
+
+    node: str  # the recorder node's fully qualified name
+    matched: dict[str, int]  # topic -> publishers its reader has matched
+    received: float  # when it came (monotonic s)
+
+
 class RecorderReports:
     """The recorders' reports as ``node`` hears them: the latest per recorder, counted only while
     its sender publishes reports in the graph. A SIGKILLed recorder says no goodbye, and its
@@ -49,9 +58,7 @@ class RecorderReports:
 
     def __init__(self, node: Node):
         self.node = node
-        # recorder id -> (its node's fully qualified name, topic -> publishers matched), oldest first
-        self.reports: dict[str, tuple[str, dict[str, int]]] = {}
-        self.received: dict[str, float] = {}  # recorder id -> when its latest report came (monotonic s)
+        self.reports: dict[str, Report] = {}  # recorder id -> its latest report, oldest first
         self.subscription = node.create_subscription(String, qos.RECORDER_MATCHES, self._on_report,
                                                      qos.reliable(100, latched=True))
 
@@ -65,27 +72,25 @@ class RecorderReports:
                                            throttle_duration_sec=10.0)
             return
         self.reports.pop(recorder, None)  # re-inserted last: the dict runs from oldest to newest
-        self.reports[recorder] = (recorder.split("#", 1)[0], matched)
-        self.received[recorder] = time.monotonic()
+        self.reports[recorder] = Report(recorder.split("#", 1)[0], matched, time.monotonic())
 
-    def confirming(self, topic: str) -> int:
-        """How many recorders in the graph report a reader on ``topic`` that has matched every
-        publisher this node's graph shows there (at least one)."""
-        needed = max(1, self.node.count_publishers(topic))
-        live = Counter(_qualified(i.node_namespace, i.node_name)
-                       for i in self.node.get_publishers_info_by_topic(self.subscription.topic_name))
+    def live(self) -> list[dict[str, int]]:
+        """What each recorder in the graph reports (topic -> publishers matched); one look at
+        the graph, so a caller checking many topics asks once."""
+        senders = Counter(qualified_name(i.node_namespace, i.node_name)
+                          for i in self.node.get_publishers_info_by_topic(self.subscription.topic_name))
         settled = time.monotonic() - REPORT_GRAPH_LAG_S
-        for recorder in [r for r, (name, _) in self.reports.items() if not live[name] and self.received[r] < settled]:
-            del self.reports[recorder], self.received[recorder]
-        confirmed = 0
-        for name, matched in reversed(self.reports.values()):
-            if live[name] > 0:
-                live[name] -= 1
-                confirmed += matched.get(topic, 0) >= needed
-        return confirmed
+        self.reports = {r: report for r, report in self.reports.items()
+                        if senders[report.node] or report.received >= settled}
+        current = []
+        for report in reversed(self.reports.values()):
+            if senders[report.node] > 0:
+                senders[report.node] -= 1
+                current.append(report.matched)
+        return current
 
 
-def _qualified(namespace: str, name: str) -> str:
+def qualified_name(namespace: str, name: str) -> str:
     """A node's fully qualified name, as ``Node.get_fully_qualified_name`` writes it."""
     return f"{namespace.rstrip('/')}/{name}"
 
@@ -93,15 +98,20 @@ def _qualified(namespace: str, name: str) -> str:
 def recorders_matched(node: Node, publishers, expected: int, reports: RecorderReports) -> bool:
     """True when at least ``expected`` recorders record the topic of every publisher in
     ``publishers`` (rclpy publishers): the publisher has matched every subscription the graph
-    shows there, and as many recorders report that their reader has matched it (so nothing
-    published from now on is lost to discovery)."""
+    shows there, and as many recorders in the graph report that their reader has matched every
+    publisher the graph shows on that topic (so nothing published from now on is lost to
+    discovery)."""
+    live = None
     for publisher in publishers:
         infos = node.get_subscriptions_info_by_topic(publisher.topic_name)
         recorders = sum(i.node_name == RECORDER_NODE for i in infos)
         if recorders < expected or publisher.get_subscription_count() < len(infos):
             return False
-        if expected and reports.confirming(publisher.topic_name) < expected:
-            return False
+        if expected:
+            live = reports.live() if live is None else live
+            needed = max(1, node.count_publishers(publisher.topic_name))
+            if sum(matched.get(publisher.topic_name, 0) >= needed for matched in live) < expected:
+                return False
     return True
 
 

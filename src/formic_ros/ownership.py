@@ -23,7 +23,7 @@ from formic_interfaces.msg import ActionBatch
 from std_msgs.msg import String
 
 from . import qos
-from .graph import RecorderReports, recorders_matched
+from .graph import RecorderReports, qualified_name, recorders_matched
 from .wire import read
 
 GRAPH_REFRESH_S = 2.0  # a per-agent topic's publishers are re-read at most this often
@@ -185,7 +185,7 @@ class Ownership:
         read_at, names = self.graph.get(topic, (-np.inf, set()))
         if time.monotonic() - read_at > GRAPH_REFRESH_S:
             infos = self.node.get_publishers_info_by_topic(topic)
-            names = {f"{i.node_namespace.rstrip('/')}/{i.node_name}" for i in infos}
+            names = {qualified_name(i.node_namespace, i.node_name) for i in infos}
             self.graph[topic] = (time.monotonic(), names)
         return names
 
