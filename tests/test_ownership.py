@@ -1,16 +1,24 @@
-"""Only an agent's owner drives it: a spoofing node changes nothing, and two nodes claiming one
-agent give a clear error with the first owner kept. Real processes, bounded and reaped."""
+"""Only an agent's owner drives it: the README's robot program drives its --external agent as
+written; a spoofing node changes nothing; two nodes claiming one agent, a second node on an owned
+agent's topic, or a claim from a node the run did not start give a clear error with the first
+owner kept. Real processes, bounded and reaped."""
 
 from __future__ import annotations
 
+import json
+import re
 import time
 
+import numpy as np
 import pytest
 
 pytest.importorskip("rclpy")
 pytest.importorskip("formic_interfaces.msg")
 
 from ros_helpers import ROOT, Spawner, fresh_domain_id  # noqa: E402
+
+from formic_runtime.episode import run_episode  # noqa: E402
+from formic_world import WorldConfig, generate_scenario  # noqa: E402
 
 WORLD = ["--agents", "8", "--size", "24", "--seed", "0", "--steps", "40", "--deadline-ms", "5000", "--json"]
 SPOOFER = """
@@ -145,3 +153,136 @@ def test_a_claim_under_the_first_owners_name_waits_before_it_takes_over(monkeypa
         node.names = [("agent_2", "/formic")] * graph_after
         world._recheck()
         assert world.owner_of[2] == owner_after
+
+
+# ------------------------------------------------------------------ the README's robot program
+def readme_robot_program() -> str:
+    """The README's robot node, exactly as a user pastes it (the block after its marker)."""
+    text = (ROOT / "README.md").read_text()
+    match = re.search(r"<!-- docs-test: robot-snippet -->\n```python\n(.*?)```", text, re.S)
+    assert match, "README.md lost its robot program"
+    return match.group(1)
+
+
+def action_steps_in(recording, topic: str) -> list[int]:
+    """The steps of every message on ``topic`` in a recording (read with mcap_ros2, as a user would)."""
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    (mcap,) = recording.glob("*.mcap")
+    with open(mcap, "rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        return [msg.step for _, _, _, msg in reader.iter_decoded_messages(topics=[topic])]
+
+
+def test_the_readme_robot_program_drives_its_external_agent(tmp_path):
+    program = tmp_path / "robot_agent.py"
+    program.write_text(readme_robot_program())
+    spawner = Spawner(tmp_path, fresh_domain_id())
+    recording = tmp_path / "rec"
+    try:
+        robot = spawner.python("robot", str(program), "3", limit_s=150)
+        run = spawner.formic("run", "run", "--agents", "16", "--size", "32", "--steps", "300", "--policy", "csaf11",
+                             "--external", "3", "--record", str(recording), "--json",
+                             "--domain-id", str(spawner.domain_id), limit_s=150)
+        assert run.wait() == 0, run.output()[-3000:]
+        assert robot.wait(timeout=30) == 0, robot.output()[-3000:]  # it leaves when the episode ends
+        summary = run.json_line()
+        assert summary["missed_actions"] == 0 and summary["rejected_actions"] == {}
+        assert summary["last_answered_step"] == [299] * 16
+        assert "agent 3: driven by its node /formic/agent_3" in run.output()
+        assert set(action_steps_in(recording, "/formic/agent_3/action")) == set(range(300))  # step 0 maybe twice
+        verify = spawner.formic("verify", "replay", str(recording), "--verify", limit_s=120)
+        assert verify.wait() == 0, verify.output()[-3000:]
+    finally:
+        spawner.reap_all()
+
+
+def sim_digest(steps: int) -> tuple[float, str]:
+    scenario = generate_scenario(WorldConfig(height=24, width=24, n_agents=8, episode_steps=steps), 0)
+    result = run_episode(scenario, "csaf11")
+    return result.food, result.world.state_digest()
+
+
+def test_a_node_beside_the_host_halts_its_agent_instead_of_hijacking_it(tmp_path):
+    """The robot program without --external: two nodes are /formic/agent_3. From the moment the
+    world's reader matches the second one it applies neither node's actions; with a deadline
+    long enough to outlast the stray node, agent 3 waits and then goes on with the host, so the
+    run is exactly `formic sim`'s: no action of the stray node was ever applied."""
+    program = tmp_path / "robot_agent.py"
+    program.write_text(readme_robot_program())
+    spawner = Spawner(tmp_path, fresh_domain_id())
+    try:
+        stray = spawner.python("stray", str(program), "3", limit_s=120)
+        run = spawner.formic("run", "run", *WORLD[:6], "--steps", "300", "--policy", "csaf11", "--deadline-ms", "30000",
+                             "--json", "--domain-id", str(spawner.domain_id), limit_s=120)
+        run.wait_for_text("publishers are on /formic/agent_3/action", timeout=60)
+        stray.kill()  # gone from the graph within the loopback lease (5 s)
+        assert run.wait() == 0, run.output()[-3000:]
+        summary = run.json_line()
+        assert (summary["food"], summary["state_digest"]) == sim_digest(300)
+        assert summary["rejected_actions"].get("foreign publisher", 0) > 0 and summary["missed_actions"] == 0
+        error = next(line for line in run.output().splitlines() if "publishers are on /formic/agent_3/action" in line)
+        assert "agent 3 is driven by /formic/agent_host_0, but 2 publishers" in error
+    finally:
+        spawner.reap_all()
+
+
+OUTSIDER = """
+import sys, rclpy
+from formic_ros.ownership import Claim
+rclpy.init(domain_id=int(sys.argv[1]))
+node = rclpy.create_node("early_bird", namespace="/formic")
+claim = Claim(node, range(8))
+print("claimed", flush=True)
+while claim.why_refused is None:
+    rclpy.spin_once(node, timeout_sec=0.1)
+print("refused:", claim.why_refused, flush=True)
+"""
+
+
+def test_a_claim_from_a_node_the_run_did_not_start_is_refused(tmp_path):
+    """A node that claims the whole team before the run's host starts does not take it."""
+    spawner = Spawner(tmp_path, fresh_domain_id())
+    try:
+        outsider = spawner.python("outsider", "-c", OUTSIDER, str(spawner.domain_id), limit_s=120)
+        outsider.wait_for_text("claimed", timeout=60)
+        run = spawner.formic("run", "run", *WORLD[:-3], "--policy", "csaf11", "--json",
+                             "--domain-id", str(spawner.domain_id), limit_s=120)
+        assert run.wait() == 0, run.output()[-3000:]
+        summary = run.json_line()
+        assert (summary["food"], summary["state_digest"]) == sim_digest(40)
+        why = "/formic/early_bird claims agents 0-7, which this run's own drivers (/formic/agent_host_0) drive"
+        assert f"claim refused: {why}" in run.output()
+        assert outsider.wait(timeout=30) == 0 and why in outsider.output()
+    finally:
+        spawner.reap_all()
+
+
+def test_nobody_joined_names_the_refused_claimant(monkeypatch):
+    from std_msgs.msg import String
+
+    from formic_ros import ownership
+    from formic_ros.lockstep import Lockstep, NobodyJoined
+
+    node = GraphNode()
+    world = ownership.Ownership(node, offer_batch=None, subscribe=lambda *args: None, external=(3,),
+                                drivers=("/formic/agent_host_0",))
+    claim = {"owner": "/formic/early_bird", "token": "t", "agents": [0, 1, 2, 3]}
+    world._on_claim(String(data=json.dumps(claim)))
+    assert world.owner_of == {} and "t" in world.outsiders
+    world._on_claim(String(data=json.dumps({**claim, "token": "u", "agents": [3]})))  # an external agent: fine
+    assert world.owner_of == {3: "u"}
+
+    class Executor:
+        def spin_once(self, timeout_sec):
+            time.sleep(min(timeout_sec, 0.01))
+
+    lockstep = Lockstep(4, log=lambda *a: None, logger=node.get_logger(), deadline_s=0.1, startup_timeout_s=0.05,
+                        rate_hz=None)
+    lockstep.why_absent = world.why_nobody_answered
+    lockstep.inbox.open(0)
+    with pytest.raises(NobodyJoined, match=r"refused a claim: /formic/early_bird claims agents 0-2, which this run's "
+                                           r"own drivers \(/formic/agent_host_0\) drive \(--external: 3\)"):
+        lockstep.await_actions(Executor(), resend=lambda missing: None, started=time.monotonic(), tick=0.0)
+    assert np.array_equal(lockstep.inbox.received, np.zeros(4, dtype=bool))

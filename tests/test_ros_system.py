@@ -223,7 +223,6 @@ def test_bad_actions_are_rejected_and_logged(spawner, monkeypatch):
     node, executor = rogue.__enter__()
     batch = node.create_publisher(ActionBatch, "/formic/actions", 10)
     own = node.create_publisher(AgentAction, "~/action", 10)
-    other = node.create_publisher(AgentAction, "/formic/agent_1/action", 10)
     answered: set[int] = set()
     pending: list[tuple[int, float]] = []  # (step, when its garbage went out)
 
@@ -237,7 +236,7 @@ def test_bad_actions_are_rejected_and_logged(spawner, monkeypatch):
             bad.append((t - 1, [3], [0]))
         for step, ids, acts in bad:
             batch.publish(ActionBatch(step=step, agent_ids=wire.u32(np.array(ids)), actions=bytes(acts)))
-        other.publish(AgentAction(step=t, agent_id=3, action=1))  # on agent 1's topic
+        own.publish(AgentAction(step=t, agent_id=1, action=1))  # agent 1's action on agent 3's topic
         own.publish(AgentAction(step=t, agent_id=3, action=200))
         for publisher in (own, batch):  # bytes that do not decode as the topic's type (truncated CDR)
             publisher.publish(b"\x00\x01\x00\x00\x05")

@@ -10,11 +10,15 @@ import dataclasses
 import hashlib
 import io
 import os
+import pickle
+import re
+import warnings
 from pathlib import Path
 from typing import Any
 
 import torch
 
+from formic_world.errors import InputError
 from formic_world.files import atomic_open
 
 from .network import ForMICNet, NetworkConfig
@@ -23,7 +27,7 @@ CHECKPOINT_FORMAT = "formic-checkpoint"
 CHECKPOINT_VERSION = 1
 
 
-class CheckpointError(ValueError):
+class CheckpointError(InputError):
     """A model file that cannot be used, with the reason."""
 
 
@@ -40,20 +44,38 @@ def save_checkpoint(path: str | os.PathLike, net: ForMICNet, **extra: Any) -> No
 
 def read_checkpoint(source: str | os.PathLike | bytes) -> dict[str, Any]:
     """Load and validate a checkpoint (a path, or its bytes as sent over ROS)."""
-    name = "<bytes>" if isinstance(source, bytes) else str(source)
+    name = _name(source)
     try:
         handle = io.BytesIO(source) if isinstance(source, bytes) else open(source, "rb")
-        with handle:
+    except OSError as exc:
+        raise CheckpointError(f"{name}: cannot read ({exc.strerror})") from exc
+    try:
+        with handle, warnings.catch_warnings():  # torch warns of a pickle protocol it may not read, then fails
+            warnings.filterwarnings("ignore", "Detected pickle protocol", UserWarning)
             payload = torch.load(handle, map_location="cpu", weights_only=True)
-    except FileNotFoundError:
-        raise
     except Exception as exc:  # torch raises many types for corrupt or unsafe files
-        raise CheckpointError(f"{name}: not a readable ForMIC checkpoint ({exc.__class__.__name__}: {exc})") from exc
+        raise CheckpointError(f"{name}: not a readable ForMIC checkpoint ({_load_failure(exc)})") from exc
     if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
         raise CheckpointError(f"{name}: not a ForMIC checkpoint")
     if payload.get("version") != CHECKPOINT_VERSION:
         raise CheckpointError(f"{name}: checkpoint version {payload.get('version')} is not supported")
     return payload
+
+
+def _name(source: str | os.PathLike | bytes) -> str:
+    return "<bytes>" if isinstance(source, bytes) else str(source)
+
+
+def _load_failure(exc: Exception) -> str:
+    """One line on why torch could not load a file. torch's refusal of anything but tensors and
+    plain data suggests ``weights_only=False``, which would run code from the file: never
+    repeated."""
+    if isinstance(exc, pickle.UnpicklingError) or "weights_only" in str(exc):
+        return "not a torch file of tensors and plain data"
+    if isinstance(exc, EOFError):
+        return "the file is empty or cut short"
+    first_sentence = re.split(r"(?<=[a-z0-9])\. (?=[A-Z])|\n", str(exc).strip())[0]
+    return f"{exc.__class__.__name__}: {first_sentence}" if first_sentence else exc.__class__.__name__
 
 
 def load_network(source: str | os.PathLike | bytes) -> tuple[ForMICNet, dict[str, Any]]:
@@ -62,7 +84,8 @@ def load_network(source: str | os.PathLike | bytes) -> tuple[ForMICNet, dict[str
         net = ForMICNet(NetworkConfig.from_dict(payload["network"]))
         net.load_state_dict(payload["state_dict"])
     except (KeyError, RuntimeError, ValueError, TypeError) as exc:
-        raise CheckpointError(f"checkpoint does not match its network configuration: {exc}") from exc
+        raise CheckpointError(f"{_name(source)}: checkpoint does not match its network configuration "
+                              f"({_load_failure(exc)})") from exc
     net.eval()
     return net, payload
 

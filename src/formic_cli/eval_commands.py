@@ -109,28 +109,21 @@ def eval_command(ctx, algorithms, sizes, teams, obstacles, envs, scenarios, seed
 
 
 def _policy_options(names: list[str], model: str | None, greedy: bool, no_pheromones: bool):
-    """Check every algorithm can be built (baseline module present, model file loads)."""
-    from formic_runtime.registry import DEFAULT_MODEL, make_policy
+    """Check every algorithm can be built (baseline module present, model file loads: a
+    missing or unusable model is an InputError, reported by the ``formic`` group)."""
+    from formic_runtime.registry import make_policy, model_path
     from formic_eval import PolicyOptions
     from formic_eval.matrix import file_digest
 
-    model_path = Path(model or DEFAULT_MODEL)
-    if "formic" in names and not model_path.exists():
-        raise click.ClickException(
-            f"formic: no model at {model or DEFAULT_MODEL}: train one with `formic train` or pass --model")
     for name in names:
         try:
             make_policy(name, model=model, greedy=greedy)
-        except FileNotFoundError as exc:
-            raise click.ClickException(f"{name}: {exc}") from exc
         except ImportError as exc:
             raise click.ClickException(f"algorithm {name} is not available: {exc}") from exc
-        except Exception as exc:  # a checkpoint that does not load
-            raise click.ClickException(f"{name}: cannot build the policy: {type(exc).__name__}: {exc}") from exc
     if "formic" not in names:
         return PolicyOptions(greedy=greedy, no_pheromones=no_pheromones)
-    return PolicyOptions(model=str(model_path), model_digest=file_digest(str(model_path)), greedy=greedy,
-                         no_pheromones=no_pheromones)
+    path = str(model_path(model))
+    return PolicyOptions(model=path, model_digest=file_digest(path), greedy=greedy, no_pheromones=no_pheromones)
 
 
 def _print_summary(summary: dict) -> None:

@@ -9,12 +9,28 @@ from pathlib import Path
 
 import click
 
+from formic_world.config import TEST_EPISODE_STEPS
+from formic_world.errors import InputError
+
 from .options import (fresh_option, json_option, model_option, open_live_view, preset_option, scenario_from,
-                      team_options, view_options, world_config_from, world_options)
+                      team_options, view_options, world_config_from, world_option_group, world_options)
 from .summary import click_errors, emit, emit_json, print_episode_summary
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
+class FormicGroup(click.Group):
+    """Every subcommand runs through :meth:`invoke`: input the user gave that cannot be used
+    (:class:`~formic_world.errors.InputError`, raised by the loaders of scenarios and models or
+    by a resumed run's checks, wherever they are called) ends the command with one line on
+    stderr and exit status 1 instead of a traceback."""
+
+    def invoke(self, ctx: click.Context):
+        try:
+            return super().invoke(ctx)
+        except InputError as exc:
+            raise click.ClickException(str(exc)) from exc
+
+
+@click.group(cls=FormicGroup, context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
 @click.version_option(package_name="formic-ros")
 def cli() -> None:
     """ForMIC: multi-agent foraging with learned pheromone communication."""
@@ -50,7 +66,7 @@ def sim(policy, model, greedy, scenario_file, out, gif, live_view, view_port, vi
         if view is not None:
             view.publish(w, final=w.done)
 
-    with click_errors(FileNotFoundError, ValueError), view if view is not None else nullcontext():
+    with click_errors(ValueError), view if view is not None else nullcontext():
         # in the world the team needs (one-slot queues for csaf-ref), over the scenario's own
         overrides = world_overrides(Team.parse(policy, scenario.config.n_agents).names)
         result = run_episode(scenario, policy, model=model, greedy=greedy,
@@ -81,7 +97,8 @@ def scenarios() -> None:
 
 
 @scenarios.command("generate")
-@world_options
+@world_option_group(TEST_EPISODE_STEPS, "Episode length: the paper's test episodes, as `formic eval` runs them "
+                    "(512: training's).")
 @click.option("--count", default=50, show_default=True, help="Scenarios in the set (seeds seed..seed+count-1).")
 @click.option("--out", type=click.Path(file_okay=False), required=True, help="Directory for the set.")
 @json_option(help=None)
@@ -99,11 +116,9 @@ def scenarios_generate(count, out, as_json, **world_kw) -> None:
 @json_option(help=None)
 def scenarios_show(path, as_json) -> None:
     """Describe a scenario file or a directory of them (and check they load)."""
-    from formic_world import ScenarioError
     from formic_world.scenario_sets import describe, load_set
 
-    with click_errors(ScenarioError):
-        items = load_set(Path(path))
+    items = load_set(Path(path))
     rows = [describe(s) | {"file": str(p)} for p, s in items]
     if as_json:
         emit_json({"scenarios": rows})
@@ -146,7 +161,7 @@ def bench() -> None:
 @bench.command("world")
 @click.option("--size", default=128, show_default=True)
 @click.option("--teams", default="16,32,64,128", show_default=True)
-@click.option("--steps", default=512, show_default=True)
+@click.option("--steps", type=click.IntRange(min=1), default=512, show_default=True)
 @click.option("--seed", default=0, show_default=True)
 @json_option(help=None)
 def bench_world(size, teams, steps, seed, as_json) -> None:
@@ -184,7 +199,8 @@ def bench_policy(network, batch, threads, episodes, as_json) -> None:
 @bench.command("decide")
 @click.option("--size", default=128, show_default=True)
 @click.option("--teams", default="16,32,64,128", show_default=True)
-@click.option("--steps", default=50, show_default=True)
+@click.option("--steps", type=click.IntRange(min=2), default=50, show_default=True,
+              help="Steps per team size (the first, warming caches up, is not timed).")
 @click.option("--seed", default=0, show_default=True)
 @click.option("--policy", default="formic", show_default=True, help="Team spec (the shipped model for formic).")
 @model_option
@@ -223,10 +239,17 @@ def bench_decide(size, teams, steps, seed, policy, model, threads, as_json) -> N
               help="Override a training field, e.g. --set network=cpu-nest --set pheromones=false.")
 @click.option("--export", type=click.Path(dir_okay=False),
               help="Afterwards write the weights alone (a small model file) here.")
-def train(preset, run_dir, episodes, minutes, fresh, overrides, export) -> None:
+@click.option("--recipe", help="Run every stage of a recipe (recipes/NAME.toml, or a .toml file) into RUN_DIR "
+              "and choose RUN_DIR/model.pt on validation; resumes (docs/training.md).")
+@click.option("--seed", type=int, help="The recipe's seed (with --recipe; a single run: --set seed=N).")
+@click.pass_context
+def train(ctx, preset, run_dir, episodes, minutes, fresh, overrides, export, recipe, seed) -> None:
     """Train a policy; checkpoints to RUN_DIR/latest.pt, TensorBoard logs to RUN_DIR/tb.
 
     Resumes from RUN_DIR/latest.pt when it exists. `--episodes 0 --export FILE` only exports."""
+    if recipe is not None or seed is not None:
+        _train_recipe(ctx, recipe, seed, Path(run_dir))
+        return
     from formic_trainer.config import make_config, parse_overrides
     from formic_trainer.train import Trainer, export_model
 
@@ -237,6 +260,23 @@ def train(preset, run_dir, episodes, minutes, fresh, overrides, export) -> None:
     if export:
         export_model(Path(run_dir) / "latest.pt", Path(export))
         click.echo(f"exported {export}")
+
+
+def _train_recipe(ctx: click.Context, recipe: str | None, seed: int | None, run_dir: Path) -> None:
+    """`formic train --recipe`: the recipe sets every stage, so the single-run options are refused."""
+    from click.core import ParameterSource
+
+    from formic_trainer.recipe import load_recipe, run_recipe
+
+    single_run = {"preset": "--preset", "episodes": "--episodes", "minutes": "--minutes", "fresh": "--fresh",
+                  "overrides": "--set", "export": "--export"}
+    given = [flag for name, flag in single_run.items() if ctx.get_parameter_source(name) is not ParameterSource.DEFAULT]
+    if recipe is None or seed is None:
+        raise click.UsageError("--recipe and --seed go together (a single run's seed: --set seed=N)")
+    if given:
+        raise click.UsageError(f"--recipe sets every stage itself: drop {', '.join(given)}")
+    with click_errors(TypeError, ValueError, interrupted="interrupted: rerun the same command to resume"):
+        run_recipe(load_recipe(recipe), run_dir, seed, echo=click.echo)
 
 
 def _register_optional() -> None:

@@ -40,25 +40,31 @@ def ros_options(domain_help: str = RUN_DOMAIN_HELP):
     return option_group(namespace, domain_option(domain_help))
 
 
-# The world options' parameter names are WorldConfig's fields, except --size, --seed and
-# --no-pheromones (see world_config_from).
-world_options = option_group(
-    click.option("--agents", "n_agents", default=32, show_default=True, help="Team size."),
-    click.option("--size", default=128, show_default=True, help="World side (square)."),
-    click.option("--steps", "episode_steps", default=512, show_default=True, help="Episode length."),
-    click.option("--seed", default=0, show_default=True, help="Scenario seed."),
-    click.option("--obstacles", "obstacle_density", default=0.0, show_default=True, help="Obstacle density."),
-    click.option("--resources", "capacity", type=click.Choice(["infinite", "finite"]), default="infinite",
-                 show_default=True, help="Resource capacity."),
-    click.option("--wipeouts", default=0, show_default=True, help="Pheromone wipeouts of 100 steps."),
-    click.option("--variant", "pheromone_variant", type=click.Choice(["standard", "flat", "noisy", "random"]),
-                 default="standard", show_default=True, help="Pheromone variant."),
-    click.option("--view-size", default=11, show_default=True, help="Observation window (5, 11, 21)."),
-    click.option("--no-pheromones", is_flag=True, help="Agents see an empty pheromone channel."),
-    click.option("--timing", type=click.Choice(["reference", "nominal"]), default="reference",
-                 show_default=True, help="Service timing (SPEC §1): the reference code's (a load "
-                 "takes 11 steps; a queue that moves up serves nobody that step) or exactly 1/rate."),
-)
+def world_option_group(steps: int = 512, steps_help: str = "Episode length."):
+    """The world options, with this default episode length. Their parameter names are
+    WorldConfig's fields, except --size, --seed and --no-pheromones (see world_config_from)."""
+    return option_group(
+        click.option("--agents", "n_agents", default=32, show_default=True, help="Team size."),
+        click.option("--size", default=128, show_default=True, help="World side (square)."),
+        click.option("--steps", "episode_steps", type=click.IntRange(min=1), default=steps, show_default=True,
+                     help=steps_help),
+        click.option("--seed", default=0, show_default=True, help="Scenario seed."),
+        click.option("--obstacles", "obstacle_density", default=0.0, show_default=True, help="Obstacle density."),
+        click.option("--resources", "capacity", type=click.Choice(["infinite", "finite"]), default="infinite",
+                     show_default=True, help="Resource capacity."),
+        click.option("--wipeouts", type=click.IntRange(min=0), default=0, show_default=True,
+                     help="Pheromone wipeouts of 100 steps."),
+        click.option("--variant", "pheromone_variant", type=click.Choice(["standard", "flat", "noisy", "random"]),
+                     default="standard", show_default=True, help="Pheromone variant."),
+        click.option("--view-size", default=11, show_default=True, help="Observation window (5, 11, 21)."),
+        click.option("--no-pheromones", is_flag=True, help="Agents see an empty pheromone channel."),
+        click.option("--timing", type=click.Choice(["reference", "nominal"]), default="reference",
+                     show_default=True, help="Service timing (SPEC §1): the reference code's (a load "
+                     "takes 11 steps; a queue that moves up serves nobody that step) or exactly 1/rate."),
+    )
+
+
+world_options = world_option_group()
 WORLD_FIELDS = ("n_agents", "episode_steps", "obstacle_density", "capacity", "wipeouts", "pheromone_variant",
                 "view_size", "timing")
 WORLD_OPTION_NAMES = (*WORLD_FIELDS, "size", "seed", "no_pheromones")

@@ -12,8 +12,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from formic_world.config import TEST_EPISODE_STEPS
+
 PAPER_SIZE = 128
-PAPER_STEPS = 1024
+PAPER_STEPS = TEST_EPISODE_STEPS
 PAPER_TEAMS = (16, 32, 64, 128)
 ALGORITHM_TITLES = {
     "formic": "ForMIC",

@@ -18,6 +18,7 @@ import sys
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
 from pathlib import Path
+from types import FrameType
 
 DISCOVERY_VARIABLE = "ROS_AUTOMATIC_DISCOVERY_RANGE"
 DOMAIN_VARIABLE = "ROS_DOMAIN_ID"
@@ -129,13 +130,46 @@ def stop_requests() -> Iterator[list]:
             signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
 
 
-def _interrupt(signum, frame) -> None:
-    raise KeyboardInterrupt(f"signal {signum}")
+INTERRUPT_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+class InterruptibleExecutor:
+    """An executor whose :meth:`spin_once` holds back SIGINT or SIGTERM while it runs and then
+    raises KeyboardInterrupt: raised inside a timer or subscription callback, the interrupt
+    would be logged by the executor as a FATAL error of that node on every normal Ctrl-C.
+    Outside ``spin_once`` the signal interrupts at once. Everything else is the wrapped
+    executor's."""
+
+    def __init__(self, executor):
+        self._executor = executor
+        self._depth = 0  # spin_once calls under way (a callback may spin too)
+        self._held: int | None = None  # the signal that arrived during one
+
+    def __getattr__(self, name: str):
+        return getattr(self._executor, name)
+
+    def spin_once(self, timeout_sec: float | None = None) -> None:
+        self._depth += 1
+        try:
+            self._executor.spin_once(timeout_sec=timeout_sec)
+        finally:
+            self._depth -= 1
+        if self._held is not None and not self._depth:
+            signum, self._held = self._held, None
+            raise KeyboardInterrupt(f"signal {signum}")
+
+    def interrupt(self, signum: int, frame: FrameType | None) -> None:
+        """The handler of :data:`INTERRUPT_SIGNALS`."""
+        if self._depth:
+            self._held = signum
+        else:
+            raise KeyboardInterrupt(f"signal {signum}")
 
 
 @contextmanager
-def ros_session(domain_id: int | None = None, interrupt: bool = True) -> Iterator:
-    """rclpy initialised for this process, with one EventsExecutor (yielded).
+def ros_session(domain_id: int | None = None, interrupt: bool = True) -> Iterator[InterruptibleExecutor]:
+    """rclpy initialised for this process, with one EventsExecutor (yielded, as an
+    :class:`InterruptibleExecutor`).
 
     rclpy's own signal handlers are off: SIGINT and SIGTERM raise KeyboardInterrupt in the
     spin loop (``spin_once`` with short timeouts, never ``spin()``: the events executor from
@@ -149,9 +183,9 @@ def ros_session(domain_id: int | None = None, interrupt: bool = True) -> Iterato
     from rclpy.experimental import EventsExecutor
     from rclpy.signals import SignalHandlerOptions
 
-    previous = signal.signal(signal.SIGTERM, _interrupt) if interrupt else None
     rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
-    executor = EventsExecutor()
+    executor = InterruptibleExecutor(EventsExecutor())
+    previous = {s: signal.signal(s, executor.interrupt) for s in INTERRUPT_SIGNALS} if interrupt else {}
     try:
         yield executor
     finally:
@@ -160,5 +194,5 @@ def ros_session(domain_id: int | None = None, interrupt: bool = True) -> Iterato
         for node in nodes:
             node.destroy_node()
         rclpy.try_shutdown()
-        if interrupt:
-            signal.signal(signal.SIGTERM, previous)
+        for sig, handler in previous.items():
+            signal.signal(sig, handler if handler is not None else signal.SIG_DFL)

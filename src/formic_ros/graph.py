@@ -109,10 +109,16 @@ def recorders_matched(node: Node, publishers, expected: int, reports: RecorderRe
             return False
         if expected:
             live = reports.live() if live is None else live
-            needed = max(1, node.count_publishers(publisher.topic_name))
-            if sum(matched.get(publisher.topic_name, 0) >= needed for matched in live) < expected:
+            if not recorders_hear(node, publisher.topic_name, expected, live):
                 return False
     return True
+
+
+def recorders_hear(node: Node, topic: str, expected: int, live: list[dict[str, int]]) -> bool:
+    """Whether ``expected`` recorders report (``live``: :meth:`RecorderReports.live`) that their
+    reader of ``topic`` has matched every publisher the graph shows there (at least one)."""
+    needed = max(1, node.count_publishers(topic))
+    return sum(matched.get(topic, 0) >= needed for matched in live) >= expected
 
 
 def wait_for_recorders(node: Node, executor, publishers, expected: int, reports: RecorderReports,

@@ -22,7 +22,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from formic_runtime.registry import DEFAULT_MODEL, apply_world_overrides
+from formic_runtime.registry import DEFAULT_MODEL, apply_world_overrides, model_path
 from formic_runtime.team import Team
 from formic_world import Scenario
 
@@ -62,11 +62,12 @@ class RunOptions:
     view_port: int | None = None  # the world serves a live view (formic_view) on this port
 
 
-def world_spec(opts: RunOptions, scenario_file: Path, label: str) -> dict:
+def world_spec(opts: RunOptions, scenario_file: Path, label: str, drivers: list[str]) -> dict:
     options = WorldNodeOptions(  # a recorder must have matched every topic before step 0
         namespace=opts.namespace, deadline_s=opts.deadline_ms / 1e3, startup_timeout_s=opts.startup_timeout_s,
         rate_hz=opts.rate_hz or None, viewer_every=opts.viewer_every, policy_label=label,
         recorders=1 if opts.record else 0, progress=opts.progress, view_port=opts.view_port,
+        external=tuple(opts.external), drivers=tuple(qos.full_name(opts.namespace, name) for name in drivers),
     )
     return node_spec("world", scenario=str(scenario_file), options=asdict(options), domain_id=opts.domain_id)
 
@@ -93,6 +94,8 @@ def launch(opts: RunOptions) -> dict:
     # The world the team needs (one-slot queues for csaf-ref): the world node serves, and the
     # recorder records, this scenario, so a replay re-simulates the same world.
     scenario = apply_world_overrides(opts.scenario, team.names)
+    if "formic" in team.names:
+        model_path(opts.model)  # a missing model: an error here, before any process starts
     if "planner" in team.names and opts.external:
         raise ValueError("the planner commands every agent; it cannot leave some to --external")
     check_domain_id(opts.domain_id)
@@ -104,9 +107,11 @@ def launch(opts: RunOptions) -> dict:
         scenario_file = run.dir / "scenario.json"
         scenario.save(scenario_file)
         world_out = run.stdout("world")
-        world = run.start("world", world_spec(opts, scenario_file, label), world_out)
+        specs = driver_specs(opts, team)
+        world = run.start("world", world_spec(opts, scenario_file, label, [s["kwargs"].get("name", s["node"]) for s in specs.values()]),
+                          world_out)
         recorder = run.start("recorder", recorder_spec(opts, team), grace_s=RECORDER_GRACE_S) if opts.record else None
-        drivers = [run.start(name, spec) for name, spec in driver_specs(opts, team).items()]
+        drivers = [run.start(name, spec) for name, spec in specs.items()]
         # the recorder leaving, or a host or the planner failing, before the world ends is an error
         watch(world, drivers, opts.timeout_s, "the world", required=recorder)
         summary = JsonLines(world_out).new()[-1]
@@ -158,7 +163,8 @@ def training_specs(opts: TrainRunOptions, config_file: Path, start: int) -> dict
     common = {"train_config": str(config_file), "namespace": opts.namespace, "domain_id": opts.domain_id}
     chunks = math.ceil(opts.config.episode_steps / opts.config.rollout_steps)
     world = WorldNodeOptions(namespace=opts.namespace, deadline_s=opts.deadline_ms / 1e3,
-                             startup_timeout_s=opts.startup_timeout_s, viewer_every=opts.viewer_every)
+                             startup_timeout_s=opts.startup_timeout_s, viewer_every=opts.viewer_every,
+                             external=(), drivers=(qos.full_name(opts.namespace, "agent_host_0"),))
     return {
         "trainer": node_spec("trainer", **common, run_dir=opts.run_dir, resume=not opts.fresh,
                              max_rollouts=opts.episodes * chunks, max_lag=max(DEFAULT_MAX_LAG, chunks)),

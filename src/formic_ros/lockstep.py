@@ -138,6 +138,7 @@ class Lockstep:
         self.inbox = ActionInbox(n_agents, log)
         self.missed = np.zeros(n_agents, dtype=np.int64)
         self.last_answered = np.full(n_agents, -1, dtype=np.int64)  # last step each agent answered in time
+        self.why_absent: Callable[[], str | None] | None = None  # the "nobody joined" error's explanation
 
     def collect(self, executor, deadline: float, need_all: bool,
                 resend: Callable[[np.ndarray], None] | None = None, resend_s: float = RESEND_S) -> None:
@@ -164,9 +165,10 @@ class Lockstep:
             self.collect(executor, now + self.startup_timeout_s, need_all=True, resend=resend)
             absent = int((~self.inbox.received).sum())
             if absent == len(self.inbox.received) and not self.allow_empty:
-                raise NobodyJoined(f"no agent answered step 0 within {self.startup_timeout_s:g} s: no agent host or "
-                                   "agent node joined (check --domain-id, --namespace and ROS_AUTOMATIC_DISCOVERY_RANGE; "
-                                   "--allow-empty runs the world without agents)")
+                why = self.why_absent() if self.why_absent is not None else None
+                raise NobodyJoined(f"no agent answered step 0 within {self.startup_timeout_s:g} s: " + (
+                    why or "no agent host or agent node joined (check --domain-id, --namespace and "
+                    "ROS_AUTOMATIC_DISCOVERY_RANGE; --allow-empty runs the world without agents)"))
             self.logger.info(
                 f"stepping: every agent answered step 0 after {time.monotonic() - started:.1f} s" if not absent else
                 f"stepping: {absent} agents did not answer step 0 within {self.startup_timeout_s:g} s"

@@ -26,7 +26,7 @@ def world(options: dict, domain_id: int | None, scenario: str | None = None, tra
     """One episode on ``scenario`` (a file), or training mode: ``episodes`` on ``train_config``'s."""
     from .world_node import WorldNodeOptions, serve_world
 
-    options = WorldNodeOptions(**{**options, "require_subscribers": tuple(options.get("require_subscribers", ()))})
+    options = WorldNodeOptions(**{k: tuple(v) if isinstance(v, list) else v for k, v in options.items()})
     if train_config is None:
         from formic_world import Scenario
 
@@ -96,13 +96,15 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="python -m formic_ros.node_process", description=__doc__.split("\n")[0])
     parser.add_argument("--options", required=True, help="The node's options (JSON), as the launcher writes them.")
     spec = json.loads(Path(parser.parse_args(argv).options).read_text())
+    from formic_world.errors import InputError
+
     from .lockstep import RunError
 
     try:
         sys.exit(NODES[spec["node"]](**spec["kwargs"]) or 0)
     except KeyboardInterrupt:
         sys.exit(130)
-    except RunError as exc:
+    except (RunError, InputError) as exc:  # e.g. a model file that does not load, a resume with other settings
         log(f"error: {exc}")
         sys.exit(1)
 

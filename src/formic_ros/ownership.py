@@ -1,14 +1,20 @@
-"""Who may drive an agent: each agent is bound to one owner, the node that claims it (the rules
-for users: docs/ros.md, "Who may drive an agent").
+"""Who may drive an agent: each agent is bound to one owner (the rules for users: docs/ros.md,
+"Who may drive an agent"; the messages: docs/interfaces.md, "Claims and owners").
 
-A driver node publishes a latched claim on ``claims`` (JSON ``{"owner": fully qualified node
-name, "token": unique per claim, "agents": [...], "actions": its own batch topic or null}``)
-and answers only once :meth:`Claim.ready`. The world (:class:`Ownership`) binds each unowned
-agent to the first claim, confirms on ``owners`` (latched JSON ``{"owners": {agent: token},
-"recorders": how many the drivers wait for}``), refuses a second claim for an owned agent unless
-the first owner has left the graph, and checks every action against its agent's owner. rclpy
-tells no publisher apart on one topic, so this guards against mistakes and stray nodes, not
-against a node that deliberately publishes on an owner's topic.
+A driver node that drives several agents (agent host, planner, learning host) publishes a latched
+claim on ``claims`` (JSON ``{"owner": fully qualified node name, "token": unique per claim,
+"agents": [...], "actions": its own batch topic or null}``) and answers only once
+:meth:`Claim.ready`. A node that is ``agent_K`` and publishes on ``agent_K/action`` needs no
+claim: it owns agent K when K is left to other nodes (``--external``; any unclaimed agent in a
+world started on its own), as soon as it is that topic's only publisher. The world
+(:class:`Ownership`) binds each unowned agent to the first claim, confirms on ``owners``
+(latched JSON ``{"owners": {agent: token}, "recorders": how many the drivers wait for,
+"refused": {token: why}}``), refuses a second claim for an owned agent unless the first owner
+has left the graph, refuses claims for a run's own agents from nodes the run did not start, and
+checks every action against its agent's owner. rclpy tells no publisher apart on one topic, so
+while a second node publishes on an owned agent's topic that agent's actions are not applied
+(it waits, it is not hijacked). This guards against mistakes and stray nodes, not against a node
+that deliberately publishes on an owner's topic.
 """
 
 from __future__ import annotations
@@ -22,8 +28,10 @@ import numpy as np
 from formic_interfaces.msg import ActionBatch
 from std_msgs.msg import String
 
+from formic_runtime.team import format_ids
+
 from . import qos
-from .graph import RecorderReports, qualified_name, recorders_matched
+from .graph import RecorderReports, qualified_name, recorders_hear, recorders_matched
 from .wire import read
 
 GRAPH_REFRESH_S = 2.0  # a per-agent topic's publishers are re-read at most this often
@@ -31,6 +39,7 @@ RECHECK_S = 0.5  # refused claims are re-examined this often (has the first owne
 TAKEOVER_GRACE_S = 2.0  # a claim this young is never taken over: its node may not be in the graph yet
 READY_CHECK_S = 0.05  # a driver re-reads the graph at most this often while it waits for recorders
 RECORDER_WAIT_S = 10.0  # a driver answers anyway this long after the confirmation (warned)
+RECORDER_PENDING = {"owner": "", "token": "", "agents": [], "actions": None}  # an adoption waiting for recorders
 
 
 class Claim:
@@ -42,6 +51,7 @@ class Claim:
         self.node, self.agents = node, sorted(int(a) for a in agents)
         self.token = f"{node.get_fully_qualified_name()}#{os.getpid()}-{uuid.uuid4().hex[:8]}"
         self.refused: list[int] = []
+        self.why_refused: str | None = None  # the world's reason, when it refused the whole claim
         self.on_refused = on_refused
         self.publishers = list(publishers)
         self.confirmed_at: float | None = None  # when the world first bound an agent to this claim
@@ -57,6 +67,10 @@ class Claim:
         owners_msg = json.loads(msg.data)
         owners = owners_msg.get("owners", {})
         self.recorders = int(owners_msg.get("recorders", 0))
+        why = owners_msg.get("refused", {}).get(self.token)
+        if why and why != self.why_refused:
+            self.node.get_logger().error(f"the world refused this node's claim: {why}")
+        self.why_refused = why
         if self.confirmed_at is None and self.token in owners.values():
             self.confirmed_at = time.monotonic()
         refused = [a for a in self.agents if owners.get(str(a), self.token) != self.token]
@@ -85,19 +99,31 @@ class Claim:
 
 class Ownership:
     """The world's side: claims in, owners out, and :meth:`allowed` / :meth:`allowed_batch`
-    (the inbox's gate)."""
+    (the inbox's gate). ``agent_readers``: the world's reader of each per-agent action topic
+    (full name -> rclpy subscription: its matched-publisher count is a local call, cheap enough
+    for every action). ``external``: the agents nodes other than the run's drivers may drive
+    (None: any, as in a world started on its own); ``drivers``: the fully qualified names of the
+    driver nodes the run started, the only ones whose claims for the other agents count (None:
+    anyone's)."""
 
-    def __init__(self, node, offer_batch, subscribe):
+    def __init__(self, node, offer_batch, subscribe, agent_readers: dict | None = None,
+                 external: tuple[int, ...] | None = None, drivers: tuple[str, ...] | None = None,
+                 recorder_reports: RecorderReports | None = None):
         self.node, self.offer_batch = node, offer_batch  # offer_batch(msg, topic): into the inbox
+        self.recorder_reports = recorder_reports  # what the recorders hear (None: nothing waits for them)
         self.subscribe = subscribe  # subscribe(type, topic, qos, callback): malformed samples counted
+        self.agent_readers = agent_readers or {}
+        self.external = None if external is None else frozenset(int(a) for a in external)
+        self.drivers = None if drivers is None else tuple(drivers)
         self.claims: dict[str, dict] = {}  # token -> claim
         self.owner_of: dict[int, str] = {}  # agent -> token
         self.refused: dict[str, dict] = {}  # token -> refused claim (re-examined)
+        self.outsiders: dict[str, dict] = {}  # token -> claim refused for good, with its reason "why" (told on ``owners``)
         self.batch_topics: set[str] = set()  # the owners' own batch topics (subscribed)
         self.rejected = None  # the inbox's rejection counter (set by the world per episode)
         self.recorders = 0  # recorders the world waits for: drivers wait for them too
         self.told: set[tuple[str, str]] = set()  # (reason, source): logged once
-        self.graph: dict[str, tuple[float, set[str]]] = {}  # topic -> (read at, publisher node names)
+        self.graph: dict[str, tuple[float, list[str]]] = {}  # topic -> (read at, publisher node names)
         self.trusted: dict[tuple[str, int], float] = {}  # (topic, agent) -> allowed until (monotonic s)
         self.batch_agents: dict[str, np.ndarray] = {}  # an owner's batch topic -> the agents it drives
         self.namespace = node.get_namespace().rstrip("/")
@@ -114,7 +140,12 @@ class Ownership:
         except (ValueError, KeyError, TypeError):
             self._count("malformed", 1, f"{qos.CLAIMS}: {msg.data[:80]!r}", "malformed claim")
             return
-        if claim["token"] in self.claims:
+        if claim["token"] in self.claims or claim["token"] in self.outsiders:
+            return
+        if why := self._outsider(claim):
+            self.node.get_logger().error(f"claim refused: {why}")
+            self.outsiders[claim["token"]] = {**claim, "why": why}
+            self._publish_owners()
             return
         claim["received_at"] = time.monotonic()
         self.claims[claim["token"]] = claim
@@ -124,12 +155,24 @@ class Ownership:
             self.subscribe(ActionBatch, topic, qos.STREAM, lambda m, t=topic: self.offer_batch(m, t))
         self._bind(claim)
 
+    def _outsider(self, claim: dict) -> str | None:
+        """Why a claim may not count (None: it may): a node the run did not start claims agents
+        the run's own drivers are to drive (say, a stray node that claims before the hosts start)."""
+        if self.drivers is None or claim["owner"] in self.drivers:
+            return None
+        theirs = [a for a in claim["agents"] if a not in (self.external or ())]
+        if not theirs:
+            return None
+        drivers = ", ".join(self.drivers) or "none"
+        external = format_ids(sorted(self.external)) if self.external else "none"
+        return (f"{claim['owner']} claims agents {format_ids(theirs)}, which this run's own drivers ({drivers}) "
+                f"drive (--external: {external})")
+
     def _alive(self, owner: str) -> int:
         return sum(f"{ns.rstrip('/')}/{name}" == owner for name, ns in self.node.get_node_names_and_namespaces())
 
     def _bind(self, claim: dict) -> None:
-        self.trusted.clear()  # owners may change here: every source is checked again
-        self.batch_agents.clear()
+        self._forget_verdicts()  # owners may change here: every source is checked again
         taken = []
         now = time.monotonic()
         for a in claim["agents"]:
@@ -157,6 +200,28 @@ class Ownership:
             self.refused.pop(claim["token"], None)
         self._publish_owners()
 
+    def _adopt(self, agent: int, via: str) -> dict | None:
+        """The claim a node that is ``agent_K`` needs none of: it owns agent K, when K is left to
+        other nodes, as soon as it is the only publisher on ``agent_K/action`` (None: it is not)
+        and the recorders the world waits for hear it (``RECORDER_PENDING`` until then)."""
+        node = f"{self.namespace}/{qos.agent_node_name(agent)}"
+        if (self.external is not None and agent not in self.external) or via != self._action_topic(agent):
+            return None
+        if self._publishers(via, fresh=True) != [node]:
+            return None
+        if self.recorders and not recorders_hear(self.node, via, self.recorders, self.recorder_reports.live()):
+            if ("unrecorded", via) not in self.told:
+                self.told.add(("unrecorded", via))
+                self.node.get_logger().info(f"agent {agent}: waiting for the recorder to hear {node} before taking "
+                                            "its actions, so that the recording holds them all")
+            return RECORDER_PENDING
+        claim = {"owner": node, "token": f"{node}#node", "agents": [agent], "actions": None,
+                 "received_at": time.monotonic()}
+        self.claims[claim["token"]] = claim
+        self.node.get_logger().info(f"agent {agent}: driven by its node {node} (no claim needed)")
+        self._bind(claim)
+        return claim
+
     def expect_recorders(self, count: int) -> None:
         """Tell the drivers how many recorders must match their action topics before they answer."""
         if count != self.recorders:
@@ -165,12 +230,23 @@ class Ownership:
 
     def _publish_owners(self) -> None:
         owners = {str(a): t for a, t in self.owner_of.items()}
-        self.owners_pub.publish(String(data=json.dumps({"owners": owners, "recorders": self.recorders})))
+        self.owners_pub.publish(String(data=json.dumps({"owners": owners, "recorders": self.recorders,
+                                                        "refused": {t: c["why"] for t, c in self.outsiders.items()}})))
 
     def _recheck(self) -> None:
         for claim in list(self.refused.values()):
             if self._alive(claim["owner"]):
                 self._bind(claim)
+
+    def why_nobody_answered(self) -> str | None:
+        """What the world knows about drivers it turned away (for the "nobody joined" error),
+        or None when it turned nobody away (then discovery is the likely cause)."""
+        reasons = [f"refused a claim: {claim['why']}" for claim in self.outsiders.values()]
+        reasons += [f"refused {claim['owner']}'s claim: its agents were already driven" for claim in self.refused.values()]
+        rejected = {reason: n for reason, n in (self.rejected or {}).items() if n}
+        if rejected:
+            reasons.append("rejected actions: " + ", ".join(f"{n} {reason}" for reason, n in sorted(rejected.items())))
+        return "; ".join(reasons) or None
 
     # ------------------------------------------------------------------ actions
     def _count(self, reason: str, count: int, source: str, what: str = "rejected action") -> None:
@@ -181,42 +257,77 @@ class Ownership:
             self.told.add(key)
             self.node.get_logger().warning(f"{what} ({reason}): {source} (logged once, counted in the summary)")
 
-    def _publishers(self, topic: str) -> set[str]:
-        read_at, names = self.graph.get(topic, (-np.inf, set()))
-        if time.monotonic() - read_at > GRAPH_REFRESH_S:
+    def _forget_verdicts(self) -> None:
+        self.trusted.clear()
+        self.batch_agents.clear()
+
+    def _action_topic(self, agent: int) -> str:
+        return qos.full_name(self.namespace or "/", qos.agent_topic(agent, qos.AGENT_ACTION))
+
+    def _publishers(self, topic: str, fresh: bool = False) -> list[str]:
+        """The nodes publishing on ``topic`` (sorted, one entry per publisher), from the graph
+        read at most ``GRAPH_REFRESH_S`` ago unless ``fresh``."""
+        read_at, names = self.graph.get(topic, (-np.inf, []))
+        if fresh or time.monotonic() - read_at > GRAPH_REFRESH_S:
             infos = self.node.get_publishers_info_by_topic(topic)
-            names = {qualified_name(i.node_namespace, i.node_name) for i in infos}
+            names = sorted(qualified_name(i.node_namespace, i.node_name) for i in infos)
             self.graph[topic] = (time.monotonic(), names)
         return names
 
     def _drives(self, claim: dict, agent: int, via: str) -> bool:
         if claim["actions"]:
             return via == claim["actions"]
-        topic = qos.full_name(self.namespace or "/", qos.agent_topic(agent, qos.AGENT_ACTION))
-        if via != topic:
+        if via != self._action_topic(agent):
             return False
         node = f"{self.namespace}/{qos.agent_node_name(agent)}"
-        names = self._publishers(topic)
-        if node not in names:
-            self.graph.pop(topic, None)  # perhaps not discovered yet: read again
-            names = self._publishers(topic)
-        for other in names - {node}:
-            self._count("foreign publisher", 0, f"{other} publishes on {topic} too (its messages cannot be "
-                        "told apart from the owner's)", "warning")
-        return node in names
+        return node in self._publishers(via) or node in self._publishers(via, fresh=True)  # perhaps just discovered
+
+    def _shared(self, via: str, agent: int) -> bool:
+        """Whether another node publishes on agent ``agent``'s own action topic beside its
+        owner: rclpy cannot tell their messages apart, so none is applied while it does (the
+        agent waits; counted as ``foreign publisher``, an ERROR once per topic). The nodes whose
+        claims for the agent the world refused were told so and stand down: they are allowed."""
+        reader = self.agent_readers.get(via)
+        if reader is None:
+            return False
+        told = sum(agent in c["agents"] and not c["actions"] for c in (*self.refused.values(), *self.outsiders.values()))
+        if reader.get_publisher_count() <= 1 + told:
+            return False
+        if self.rejected is not None:
+            self.rejected["foreign publisher"] += 1
+        if ("foreign publisher", via) not in self.told:
+            self.told.add(("foreign publisher", via))
+            owner = self.claims[self.owner_of[agent]]["owner"]
+            names = self._publishers(via, fresh=True)
+            self.node.get_logger().error(
+                f"agent {agent} is driven by {owner}, but {reader.get_publisher_count()} publishers are on {via} "
+                f"(nodes {', '.join(names)}): its actions are not applied while another node publishes there (the "
+                f"first owner keeps the agent, which waits; stop the other node). Logged once, counted in the summary")
+        return True
 
     def allowed(self, via: str, agent: int) -> bool:
         """Whether agent ``agent``'s action that arrived on topic ``via`` was sent by its owner.
         A yes holds for ``GRAPH_REFRESH_S`` (or until the owners change): per-agent actions come
-        one message each, and checking each anew cost the world ~5 ms a step at 128 agents."""
+        one message each, and checking each anew cost the world ~5 ms a step at 128 agents. A
+        second publisher on the owner's topic is checked on every action."""
         now = time.monotonic()
         if self.trusted.get((via, agent), -np.inf) > now:
-            return True
+            return not self._shared(via, agent)
         claim = self.claims.get(self.owner_of.get(agent, ""))
+        if claim is None:
+            claim = self._adopt(agent, via)
+            if claim is RECORDER_PENDING:
+                return False  # dropped, not rejected: the world re-sends the observation
         if claim is not None and self._drives(claim, agent, via):
+            if self._shared(via, agent):
+                return False
             self.trusted[(via, agent)] = now + GRAPH_REFRESH_S
             return True
-        self._count("unclaimed" if claim is None else "not owner", 1, f"{via} (agent {agent} and maybe more)")
+        if claim is None and self.external is not None and agent not in self.external and via == self._action_topic(agent):
+            self._count("unclaimed", 1, f"{via} (agent {agent} is not --external: only the run's own drivers "
+                                        "drive it, and none has claimed it)")
+        else:
+            self._count("unclaimed" if claim is None else "not owner", 1, f"{via} (agent {agent} and maybe more)")
         return False
 
     def allowed_batch(self, via: str, ids: np.ndarray) -> np.ndarray:

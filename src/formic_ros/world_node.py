@@ -56,6 +56,8 @@ class WorldNodeOptions:
     progress: bool = False
     allow_empty: bool = False  # step on when no agent answered step 0 (else NobodyJoined)
     view_port: int | None = None  # live view (formic_view, Foxglove WebSocket) on this port; None: none
+    external: tuple[int, ...] | None = None  # agents other nodes may drive (None: any; formic_ros.ownership)
+    drivers: tuple[str, ...] | None = None  # the run's own driver nodes, the only claimants of the rest (None: anyone)
 
 
 class WorldNode(Node):
@@ -83,10 +85,14 @@ class WorldNode(Node):
                                for a in range(n)]
         sub = functools.partial(convert.checked_subscription, self, on_malformed=self._on_malformed)
         self.actions_sub = sub(ActionBatch, qos.ACTIONS, qos.STREAM, self._on_action_batch)
-        self.action_topics = [sub(AgentAction, qos.agent_topic(a, qos.AGENT_ACTION), qos.STREAM,
-                                  lambda m, a=a: self._on_agent_action(a, m)).topic_name for a in range(n)]
-        self.ownership = Ownership(self, lambda msg, topic: self.inbox.offer(*batch_of(msg), topic, topic), sub)
+        action_readers = [sub(AgentAction, qos.agent_topic(a, qos.AGENT_ACTION), qos.STREAM,
+                              lambda m, a=a: self._on_agent_action(a, m)) for a in range(n)]
+        self.action_topics = [reader.topic_name for reader in action_readers]
         self.recorder_reports = RecorderReports(self)
+        self.ownership = Ownership(self, lambda msg, topic: self.inbox.offer(*batch_of(msg), topic, topic), sub,
+                                   agent_readers={r.topic_name: r for r in action_readers},
+                                   external=options.external, drivers=options.drivers,
+                                   recorder_reports=self.recorder_reports)
         self._listening, self._listening_at = [], -np.inf
         self.view = None  # the live view, fed after each step (formic_view; no ROS involved)
         if options.view_port is not None:
@@ -108,6 +114,7 @@ class WorldNode(Node):
                                  opts.allow_empty)
         self.inbox = self.lockstep.inbox
         self.inbox.owners, self.ownership.rejected = self.ownership, self.inbox.rejected
+        self.lockstep.why_absent = self.ownership.why_nobody_answered
         self.scenario_pub.publish(convert.encode_scenario(scenario, opts.policy_label))
 
     # ------------------------------------------------------------------ actions in

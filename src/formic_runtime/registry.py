@@ -9,6 +9,8 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from formic_world.errors import InputError
+
 if TYPE_CHECKING:
     from formic_agent.policy import CentralPolicy, Policy
     from formic_world import Scenario
@@ -83,12 +85,18 @@ def apply_world_overrides(scenario: Scenario, policy_names: Iterable[str]) -> Sc
     return changed
 
 
+def model_path(model: str | Path | None) -> Path:
+    """The learned policy's checkpoint: ``model``, or the shipped one (checked without loading
+    torch, so a launcher can refuse a missing model before it starts any process)."""
+    path = Path(model) if model else DEFAULT_MODEL
+    if not path.exists():
+        raise InputError(f"no model at {path}: train one with `formic train` or pass --model")
+    return path
+
+
 def make_policy(name: str, model: str | Path | None = None, greedy: bool = False) -> Policy | CentralPolicy:
     """A fresh policy object for ``name`` (the learned one loads ``model`` or the shipped one)."""
     cls = policy_class(name)
     if name == "formic":
-        path = Path(model) if model else DEFAULT_MODEL
-        if not path.exists():
-            raise FileNotFoundError(f"no model at {path}: train one with `formic train` or pass --model")
-        return cls.from_checkpoint(path, greedy=greedy)
+        return cls.from_checkpoint(model_path(model), greedy=greedy)
     return cls(**_POLICIES[name][2])

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from formic_agent.checkpoint import initialise_from, load_network, read_checkpoint, save_checkpoint
+from formic_agent.checkpoint import CheckpointError, initialise_from, load_network, read_checkpoint, save_checkpoint
 
 from .algorithm import make_optimizer, set_learning_rate, training_network, update, update_data
 from .config import TrainConfig, plain
@@ -81,7 +81,7 @@ class Learner:
         changed = sorted(k for k, v in self.cfg.to_dict().items()
                          if k not in RESUMABLE and k in stored and plain(stored[k]) != plain(v))
         if changed:
-            raise ValueError(
+            raise CheckpointError(
                 f"{path} was trained with different settings ({', '.join(changed)}); "
                 "use the same settings, a new --run-dir, or --fresh"
             )

@@ -20,6 +20,7 @@ CAPACITY_MODES = ("infinite", "finite")
 TIMINGS = ("reference", "nominal")
 AGENT_ORDERS = ("random", "id")
 TRAINING_FILTERS = ("paper", "reference")
+TEST_EPISODE_STEPS = 1024  # the paper's test episodes (SPEC §1); WorldConfig's default, 512, is training's
 
 
 @dataclass(frozen=True)
@@ -104,6 +105,10 @@ class WorldConfig:
             raise ValueError(f"obstacle_density must be in [0, 0.5), got {self.obstacle_density}")
         if not 0.0 <= self.highway_intensity <= 1.0 or not 0.0 <= self.deposit_strength <= 1.0:
             raise ValueError("highway_intensity and deposit_strength must be in [0, 1]")
+        if self.episode_steps < 1:
+            raise ValueError(f"episode_steps must be >= 1, got {self.episode_steps}")
+        if self.wipeouts < 0:
+            raise ValueError(f"wipeouts must be >= 0, got {self.wipeouts}")
         if self.wipeouts * self.wipeout_steps > self.episode_steps:
             raise ValueError("wipeouts do not fit in the episode")
         if not 1 <= self.capacity_min <= self.capacity_max:

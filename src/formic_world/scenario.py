@@ -18,6 +18,7 @@ import numpy as np
 from scipy import ndimage
 
 from .config import WorldConfig, resource_count_range
+from .errors import InputError
 from .files import atomic_open
 from .geometry import (
     CACHE,
@@ -37,7 +38,7 @@ _PLACEMENT_TRIES = 200  # per resource strip before the whole layout is redrawn
 _LAYOUT_TRIES = 100
 
 
-class ScenarioError(ValueError):
+class ScenarioError(InputError):
     """A scenario file or layout that cannot be used, with the reason."""
 
 
@@ -111,10 +112,12 @@ class Scenario:
                 ),
                 wipeout_starts=tuple(int(s) for s in data["wipeout_starts"]),
             )
-        except (KeyError, TypeError, ValueError) as exc:
-            if isinstance(exc, ScenarioError):
-                raise
-            raise ScenarioError(f"malformed scenario: {exc!r}") from exc
+        except ScenarioError:
+            raise
+        except KeyError as exc:
+            raise ScenarioError(f"malformed scenario: no {exc.args[0]!r} field") from exc
+        except (TypeError, ValueError) as exc:
+            raise ScenarioError(f"malformed scenario: {exc}") from exc
         validate_scenario(scenario)
         return scenario
 
@@ -255,7 +258,8 @@ def nearest_nest_cells(free: np.ndarray, count: int) -> list[tuple[int, int]]:
     euclid = (rows - cr) ** 2 + (cols - cc) ** 2
     order = np.lexsort((cols, rows, euclid, chebyshev))[:count]
     if len(order) < count:
-        raise ScenarioError(f"no room for {count} agents near the nest")
+        raise ScenarioError(f"no room for {count} agents: a {height}x{width} world has {len(order)} free "
+                            "cells to start on")
     return [(int(rows[i]), int(cols[i])) for i in order]
 
 

@@ -1,0 +1,221 @@
+"""Bad input to the ``formic`` command ends in one line on stderr and a non-zero status, never a
+traceback: too many agents, corrupt scenario files, missing or foreign model files, a resume
+with other settings, a non-positive episode length. Also: a stored scenario set has the
+episodes ``formic eval`` runs, and Ctrl-C of a node logs no FATAL error."""
+
+from __future__ import annotations
+
+import json
+import pickle
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import pytest
+import torch
+from click.testing import CliRunner
+
+from formic_cli.main import cli
+from formic_eval.paper import PAPER_STEPS
+from formic_world import Scenario, WorldConfig, generate_scenario
+
+TINY_WORLD = ["--size", "16", "--agents", "4", "--steps", "5"]
+TINY_TRAINING = ["--set", "teams=4", "--set", "world_sizes=16-16", "--set", "episode_steps=32",
+                 "--set", "rollout_steps=16", "--set", "threads=1"]
+
+
+def formic(*args: str):
+    return CliRunner().invoke(cli, list(args))
+
+
+def assert_one_line_error(result, expected: str, status: int = 1) -> None:
+    assert (result.exit_code, result.stderr, result.stdout) == (status, f"Error: {expected}\n", "")
+
+
+def formic_process(*args: str, ros: bool = False) -> subprocess.CompletedProcess:
+    """The real command in a process of its own (ROS commands: on a test domain)."""
+    env = None
+    if ros:
+        pytest.importorskip("rclpy")
+        from ros_helpers import fresh_domain_id, ros_test_environment
+
+        env = ros_test_environment(fresh_domain_id())
+    return subprocess.run([sys.executable, "-m", "formic_cli.main", *args], capture_output=True, text=True,
+                          env=env, timeout=120)
+
+
+def test_more_agents_than_fit_is_one_line():
+    result = formic_process("sim", "--agents", "2000", "--size", "16")
+    assert (result.returncode, result.stderr) == (
+        1, "Error: no room for 2000 agents: a 16x16 world has 172 free cells to start on\n")
+
+
+def _scenario_text(**changes) -> str:
+    data = generate_scenario(WorldConfig(height=16, width=16, n_agents=4, episode_steps=5), 0).to_dict()
+    data["config"].update(changes.pop("config", {}))
+    data.update(changes)
+    return json.dumps(data)
+
+
+CORRUPT_SCENARIOS = {  # file content -> the reason after "PATH: "
+    "truncated": ('{"format": "formic-scenario", "version": 2, "seed": ',
+                  "scenario is not valid JSON: Expecting value: line 1 column 53 (char 52)"),
+    "binary": (bytes(range(256)), "not a text file"),
+    "no agents": (json.dumps({k: v for k, v in json.loads(_scenario_text()).items() if k != "agents"}),
+                  "malformed scenario: no 'agents' field"),
+    "seed not a number": (_scenario_text(seed="x"), "malformed scenario: invalid literal for int() with base 10: 'x'"),
+    "no steps": (_scenario_text(config={"episode_steps": 0}), "malformed scenario: episode_steps must be >= 1, got 0"),
+    "a list": ("[1, 2]", "scenario must be a JSON object"),
+}
+
+
+@pytest.mark.parametrize("kind", CORRUPT_SCENARIOS)
+@pytest.mark.parametrize("command", [["sim"], ["scenarios", "show"], ["render"]])
+def test_a_corrupt_scenario_file_is_one_line(tmp_path, kind, command):
+    content, reason = CORRUPT_SCENARIOS[kind]
+    path = tmp_path / "bad.json"
+    path.write_bytes(content if isinstance(content, bytes) else content.encode())
+    args = [*command, "--scenario", str(path), "--out", str(tmp_path)] if command == ["sim"] else [*command, str(path)]
+    assert_one_line_error(formic(*args), f"{path}: {reason}")
+
+
+def test_eval_names_the_corrupt_file_of_a_scenario_directory(tmp_path):
+    (tmp_path / "set").mkdir()
+    (tmp_path / "set" / "bad.json").write_bytes(bytes(range(256)))
+    result = formic("eval", "--algorithms", "random", "--scenarios", str(tmp_path / "set"), "--out", str(tmp_path))
+    assert_one_line_error(result, f"scenarios: {tmp_path / 'set' / 'bad.json'}: not a text file")
+
+
+def test_world_and_run_report_a_corrupt_scenario_file_in_one_line(tmp_path):
+    path = tmp_path / "bad.json"
+    path.write_text("[1, 2]")
+    for command in ("world", "run"):
+        result = formic_process(command, "--scenario", str(path), ros=True)
+        assert (result.returncode, result.stderr) == (1, f"Error: {path}: scenario must be a JSON object\n"), command
+
+
+def _foreign_files(directory: Path) -> dict[str, tuple[Path, str]]:
+    """Files that are no ForMIC checkpoint -> (path, the reason after "PATH: ")."""
+    unreadable = "not a readable ForMIC checkpoint"
+    files = {"garbage": bytes(range(7, 256)), "empty": b""}
+    paths = {}
+    for name, content in files.items():
+        paths[name] = directory / f"{name}.pt"
+        paths[name].write_bytes(content)
+    paths["tensor"] = directory / "tensor.pt"
+    torch.save(torch.zeros(3), paths["tensor"])
+    paths["module"] = directory / "module.pt"  # torch's own refusal advises weights_only=False
+    torch.save({"layer": torch.nn.Linear(2, 2)}, paths["module"])
+    paths["code"] = directory / "code.pt"
+    paths["code"].write_bytes(pickle.dumps(subprocess.Popen))
+    paths["zip"] = directory / "archive.pt"
+    with zipfile.ZipFile(paths["zip"], "w") as archive:
+        archive.writestr("notes.txt", "hello")
+    paths["truncated"] = directory / "truncated.pt"
+    paths["truncated"].write_bytes((Path(__file__).parents[1] / "models" / "formic_paper.pt").read_bytes()[:3000])
+    plain = f"{unreadable} (not a torch file of tensors and plain data)"
+    return {
+        "garbage": (paths["garbage"], plain),
+        "empty": (paths["empty"], f"{unreadable} (the file is empty or cut short)"),
+        "tensor": (paths["tensor"], "not a ForMIC checkpoint"),
+        "module": (paths["module"], plain),
+        "code": (paths["code"], plain),
+        "zip": (paths["zip"], f"{unreadable} (RuntimeError: [enforce fail at inline_container.cc:180] . file in "
+                              "archive is not in a subdirectory: notes.txt)"),
+        "truncated": (paths["truncated"], f"{unreadable} (RuntimeError: PytorchStreamReader failed reading zip "
+                                          "archive: failed finding central directory)"),
+    }
+
+
+@pytest.mark.parametrize("kind", ["garbage", "empty", "tensor", "module", "code", "zip", "truncated"])
+def test_a_file_that_is_no_checkpoint_is_one_line_without_unsafe_advice(tmp_path, kind):
+    path, reason = _foreign_files(tmp_path)[kind]
+    result = formic("sim", *TINY_WORLD, "--model", str(path), "--out", str(tmp_path))
+    assert_one_line_error(result, f"{path}: {reason}")
+    assert "weights_only" not in result.output
+
+
+def test_eval_and_an_agent_host_report_a_foreign_model_the_same_way(tmp_path):
+    path, reason = _foreign_files(tmp_path)["module"]
+    result = formic("eval", "--algorithms", "formic", "--model", str(path), "--sizes", "16", "--teams", "4",
+                    "--scenarios", "1", "--steps", "5", "--out", str(tmp_path / "eval"))
+    assert_one_line_error(result, f"{path}: {reason}")
+    host = formic_process("agents", "--ids", "0", "--model", str(path), ros=True)
+    assert (host.returncode, host.stderr) == (1, f"Error: {path}: {reason}\n")
+
+
+def test_a_missing_model_is_one_line_for_sim_eval_and_run(tmp_path):
+    missing = tmp_path / "none.pt"
+    expected = f"no model at {missing}: train one with `formic train` or pass --model"
+    assert_one_line_error(formic("sim", *TINY_WORLD, "--model", str(missing), "--out", str(tmp_path)), expected)
+    assert_one_line_error(formic("eval", "--algorithms", "formic", "--model", str(missing), "--scenarios", "1",
+                                 "--out", str(tmp_path)), expected)
+    run = formic_process("run", *TINY_WORLD, "--model", str(missing), ros=True)  # refused before any process starts
+    assert (run.returncode, run.stderr) == (1, f"Error: {expected}\n")
+
+
+def test_resuming_training_with_other_settings_is_one_line(tmp_path):
+    run_dir = tmp_path / "run"
+    first = formic("train", "--run-dir", str(run_dir), "--episodes", "1", *TINY_TRAINING)
+    assert first.exit_code == 0, first.output
+    again = formic("train", "--run-dir", str(run_dir), "--episodes", "1", *TINY_TRAINING, "--set", "lr=0.001")
+    assert_one_line_error(again, f"{run_dir / 'latest.pt'} was trained with different settings (lr); use the same "
+                                 "settings, a new --run-dir, or --fresh")
+
+
+def test_exporting_from_a_run_directory_without_a_checkpoint_is_one_line(tmp_path):
+    result = formic("train", "--run-dir", str(tmp_path), "--episodes", "0", "--export", str(tmp_path / "m.pt"))
+    assert_one_line_error(result, f"{tmp_path / 'latest.pt'}: cannot read (No such file or directory)")
+
+
+@pytest.mark.parametrize("command", [["sim"], ["scenarios", "generate", "--out", "unused"], ["bench", "world"]])
+@pytest.mark.parametrize("steps", ["0", "-3"])
+def test_a_non_positive_episode_length_is_a_usage_error(command, steps):
+    result = formic(*command, "--steps", steps)
+    assert result.exit_code == 2 and result.stdout == ""
+    assert result.stderr.endswith(f"Error: Invalid value for '--steps': {steps} is not in the range x>=1.\n")
+
+
+def test_stored_scenario_sets_have_the_episodes_eval_runs(tmp_path):
+    result = formic("scenarios", "generate", "--size", "16", "--agents", "4", "--count", "1", "--out", str(tmp_path))
+    assert result.exit_code == 0, result.output
+    (path,) = tmp_path.glob("*.json")
+    assert path.name == f"s16_n4_o0_infinite_w0_t{PAPER_STEPS}_seed0.json" and PAPER_STEPS == 1024
+    assert Scenario.load(path).config.episode_steps == PAPER_STEPS
+    help_text = " ".join(formic("scenarios", "generate", "--help").output.split())
+    assert "the paper's test episodes, as `formic eval` runs them" in help_text and "[default: 1024; x>=1]" in help_text
+
+
+INTERRUPTED_IN_A_TIMER = """
+import os, signal, sys, time
+import rclpy
+from formic_ros.env import ros_session
+
+with ros_session() as executor:
+    node = rclpy.create_node("probe", namespace="/formic")
+    executor.add_node(node)
+
+    def tick():
+        os.kill(os.getpid(), getattr(signal, sys.argv[1]))
+        time.sleep(0.05)  # the signal's handler runs here, inside the callback
+
+    node.create_timer(0.01, tick)
+    try:
+        for _ in range(50):
+            executor.spin_once(timeout_sec=0.1)
+    except KeyboardInterrupt:
+        print("interrupted")
+        sys.exit(130)
+"""
+
+
+@pytest.mark.parametrize("signal_name", ["SIGINT", "SIGTERM"])
+def test_a_signal_during_a_timer_callback_stops_the_node_quietly(signal_name):
+    """The executor would log an interrupt raised inside a callback as a FATAL error."""
+    pytest.importorskip("rclpy")
+    from ros_helpers import fresh_domain_id, ros_test_environment
+
+    result = subprocess.run([sys.executable, "-c", INTERRUPTED_IN_A_TIMER, signal_name], capture_output=True,
+                            text=True, env=ros_test_environment(fresh_domain_id()), timeout=60)
+    assert (result.returncode, result.stdout, result.stderr) == (130, "interrupted\n", "")
