@@ -1,0 +1,374 @@
+"""Training recipes: every stage of a model, warm starts, checkpoint means and the final choice,
+in one resumable command (``formic train --recipe NAME --seed S --run-dir DIR``).
+
+A recipe is a TOML file (``recipes/NAME.toml``, in the spirit of rl-baselines3-zoo's
+hyper-parameter files) so that a shipped model is rebuilt from a file instead of from a model
+card's hand-run commands. Each stage trains with :class:`~formic_trainer.train.Trainer` in
+``DIR/<stage>``; its settings are the previous stage's with its own ``set`` on top (so a stage
+reads as "the one before with these switches"), its start is ``"scratch"``, an earlier stage's
+final weights or an earlier stage's checkpoint mean, always with a fresh optimiser. The
+candidates named by ``candidates`` are played on validation scenarios stored in ``DIR`` (never
+on a test set) and the best by :data:`SELECTION_RULE` is copied to ``DIR/model.pt``.
+
+A kill at any point loses at most the episodes since the last checkpoint: a complete stage is
+skipped, a stage in progress resumes from its ``latest.pt``, snapshots, means, ``model.pt`` and
+``selection.json`` are written atomically (a mean is rebuilt unless it names exactly its
+inputs), and validation episodes are reused from their crash-safe log.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import tomllib
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
+
+from formic_agent.checkpoint import read_checkpoint
+from formic_world.errors import InputError
+from formic_world.files import atomic_open
+
+from .averaging import average_sources, write_average
+from .config import PRESETS, TrainConfig, make_config
+from .train import Trainer, export_model
+
+RECIPES = Path(__file__).resolve().parents[2] / "recipes"
+SELECTION_RULE = ("the candidate with the highest mean food over all validation episodes (every team size "
+                  "pooled, agents sampling); the first listed wins a tie")
+# TrainConfig fields a stage's `set` may not hold: the recipe derives them
+DERIVED = {"preset": "the recipe's preset", "seed": "--seed", "total_episodes": "the stage's episodes",
+           "init_weights": "the stage's start"}
+_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]*")
+
+
+class RecipeError(InputError):
+    """A recipe (or a run directory) that cannot be used, with the reason in one line."""
+
+
+@dataclass(frozen=True)
+class Stage:
+    name: str
+    episodes: int
+    start: str  # "scratch", an earlier stage's name (its final weights) or "<stage>.mean"
+    settings: dict  # every TrainConfig field this stage sets, inherited ones included
+    average: tuple[int, int] | None  # (first, every): the mean of the checkpoints first, first+every, ..., episodes
+
+    def snapshots(self) -> tuple[int, ...]:
+        """The episodes whose weights the stage's mean averages."""
+        return () if self.average is None else tuple(range(self.average[0], self.episodes + 1, self.average[1]))
+
+
+@dataclass(frozen=True)
+class Validation:
+    """The validation set: ``scenarios`` per team size, generated like ``formic eval --seed``."""
+
+    seed: int
+    size: int
+    teams: tuple[int, ...]
+    scenarios: int
+    steps: int
+
+
+@dataclass(frozen=True)
+class Recipe:
+    source: Path
+    text: str
+    preset: str
+    budget_cpu_hours: float
+    stages: tuple[Stage, ...]
+    candidates: tuple[str, ...]
+    validation: Validation
+
+    @property
+    def episodes(self) -> int:
+        return sum(stage.episodes for stage in self.stages)
+
+
+def recipe_path(spec: str) -> Path:
+    """A recipe name (``recipes/NAME.toml`` of this repository) or a ``.toml`` file."""
+    path = Path(spec)
+    return path if path.suffix == ".toml" or len(path.parts) > 1 else RECIPES / f"{spec}.toml"
+
+
+def load_recipe(spec: str) -> Recipe:
+    """Read and check a recipe: every stage's configuration is built once here, so a mistake
+    fails before any training, in one line naming the file."""
+    path = recipe_path(spec)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        known = ", ".join(sorted(p.stem for p in RECIPES.glob("*.toml")))
+        raise RecipeError(f"{path}: cannot read ({exc.strerror}); recipes here: {known}") from None
+    try:
+        return _parse(tomllib.loads(text), path, text)
+    except tomllib.TOMLDecodeError as exc:
+        raise RecipeError(f"{path}: not valid TOML ({exc})") from None
+    except (TypeError, ValueError) as exc:  # RecipeError, or a TrainConfig's own check
+        raise RecipeError(f"{path}: {exc}") from None
+
+
+def _keys(table: dict, where: str, required: set[str], optional: set[str] = frozenset()) -> dict:
+    if not isinstance(table, dict):
+        raise RecipeError(f"{where} must be a table")
+    missing, unknown = sorted(required - set(table)), sorted(set(table) - required - optional)
+    if missing:
+        raise RecipeError(f"{where}: missing {', '.join(missing)}")
+    if unknown:
+        raise RecipeError(f"{where}: unknown {', '.join(unknown)} (known: {', '.join(sorted(required | optional))})")
+    return table
+
+
+def _typed(value, like, where: str, length: int | None = None):
+    """``value`` from TOML as the type of ``like`` (a TrainConfig default): lists become tuples,
+    inner ones (a world's side range) as long as the default's."""
+    if isinstance(like, tuple):
+        if not isinstance(value, list) or length not in (None, len(value)):
+            raise RecipeError(f"{where} must be a list" + (f" of {length}" if length else ""))
+        inner = len(like[0]) if isinstance(like[0], tuple) else None
+        return tuple(_typed(v, like[0], f"{where}[{i}]", inner) for i, v in enumerate(value))
+    if isinstance(like, float) and isinstance(value, int) and not isinstance(value, bool):
+        return float(value)
+    if type(value) is not type(like):
+        raise RecipeError(f"{where} must be {type(like).__name__}, not {value!r}")
+    return value
+
+
+def _number(table: dict, key: str, where: str, kind: type = int, least: float = 1):
+    value = table[key]
+    if kind is float and type(value) is int:
+        value = float(value)
+    if type(value) is not kind or value < least:
+        raise RecipeError(f"{where}.{key} must be {'a whole number' if kind is int else 'a number'} >= {least}, "
+                          f"not {value!r}")
+    return value
+
+
+def _parse(data: dict, path: Path, text: str) -> Recipe:
+    _keys(data, "recipe", {"preset", "budget_cpu_hours", "candidates", "validation", "stage"})
+    if data["preset"] not in PRESETS:
+        raise RecipeError(f"preset {data['preset']!r} is not one of {', '.join(PRESETS)}")
+    defaults, known = TrainConfig(), {f.name for f in fields(TrainConfig)}
+    stages: list[Stage] = []
+    settings: dict = {}
+    if not isinstance(data["stage"], list) or not data["stage"]:
+        raise RecipeError("needs one or more [[stage]] tables")
+    for i, table in enumerate(data["stage"]):
+        _keys(table, f"stage {i + 1}", {"name", "episodes", "start"}, {"set", "average"})
+        name, start = table["name"], table["start"]
+        where = f"stage {name!r}"
+        earlier = {s.name: s for s in stages}
+        if not isinstance(name, str) or not _NAME.fullmatch(name) or name == "scratch" or name in earlier:
+            raise RecipeError(f"stage {i + 1}: name {name!r} must be new, not 'scratch', of letters, digits, - and _")
+        if start != "scratch":
+            _reference(start, earlier, f"{where}: start")
+        own = table.get("set", {})
+        if not isinstance(own, dict):
+            raise RecipeError(f"{where}.set must be a table")
+        for key, value in own.items():
+            if key not in known:
+                raise RecipeError(f"{where}.set.{key} is not a training setting (a TrainConfig field)")
+            if key in DERIVED:
+                raise RecipeError(f"{where}.set.{key}: given by {DERIVED[key]}")
+            settings[key] = _typed(value, getattr(defaults, key), f"{where}.set.{key}")
+        try:
+            cfg = make_config(data["preset"], **settings)
+        except (TypeError, ValueError) as exc:
+            raise RecipeError(f"{where}: {exc}") from None
+        worlds, episodes = len(cfg.teams), _number(table, "episodes", where)
+        average = None
+        if "average" in table:
+            _keys(table["average"], f"{where}.average", {"first", "every"})
+            average = (_number(table["average"], "first", f"{where}.average"),
+                       _number(table["average"], "every", f"{where}.average"))
+            if average[0] > episodes:
+                raise RecipeError(f"{where}.average.first ({average[0]}) is beyond its {episodes} episodes")
+        if any(n % worlds for n in (episodes, *(average or ()))):
+            raise RecipeError(f"{where}: episodes and average must be multiples of its {worlds} worlds "
+                              "(one episode set plays one episode in each)")
+        stages.append(Stage(name, episodes, start, dict(settings), average))
+    candidates = data["candidates"]
+    if not isinstance(candidates, list) or not candidates or len(set(candidates)) < len(candidates):
+        raise RecipeError("candidates must be a list of distinct stages or stage means")
+    for candidate in candidates:
+        _reference(candidate, {s.name: s for s in stages}, "candidates")
+    table = _keys(data["validation"], "validation", {"seed", "size", "teams", "scenarios", "steps"})
+    teams = table["teams"]
+    if not isinstance(teams, list) or not teams or not all(type(n) is int and n > 0 for n in teams):
+        raise RecipeError("validation.teams must be a list of team sizes")
+    validation = Validation(_number(table, "seed", "validation", least=0), _number(table, "size", "validation"),
+                            tuple(teams), _number(table, "scenarios", "validation"),
+                            _number(table, "steps", "validation"))
+    return Recipe(path, text, data["preset"], _number(data, "budget_cpu_hours", "recipe", float, 0),
+                  tuple(stages), tuple(candidates), validation)
+
+
+def _reference(ref: str, stages: dict[str, Stage], where: str) -> None:
+    """``ref`` names an (earlier) stage's final weights, or its mean when it has one."""
+    name, _, part = ref.partition(".") if isinstance(ref, str) else ("", "", "")
+    if name not in stages or part not in ("", "mean") or (part and stages[name].average is None):
+        raise RecipeError(f"{where} {ref!r} is not 'scratch', an earlier stage or the '.mean' of an earlier "
+                          f"stage with an average (stages: {', '.join(stages) or 'none'})")
+
+
+def weights_file(run_dir: Path, ref: str) -> Path:
+    """The file a stage reference names: ``DIR/<stage>/latest.pt`` or ``DIR/<stage>/mean.pt``."""
+    name, _, part = ref.partition(".")
+    return run_dir / name / ("mean.pt" if part else "latest.pt")
+
+
+def stage_config(recipe: Recipe, index: int, run_dir: Path, seed: int) -> TrainConfig:
+    """Stage ``index``'s training configuration; its seed is 1000 * seed + index + 1, so no two
+    stages of a run and no two runs of seeds below 1000 share a random stream."""
+    stage = recipe.stages[index]
+    start = "" if stage.start == "scratch" else str(weights_file(run_dir, stage.start))
+    return make_config(recipe.preset, **stage.settings, seed=1000 * seed + index + 1,
+                       total_episodes=stage.episodes, init_weights=start)
+
+
+def _progress(checkpoint: Path) -> dict:
+    """The counters of a stage's ``latest.pt`` (zero before it exists)."""
+    if not checkpoint.exists():
+        return {"episode": 0, "cpu_seconds": 0.0}
+    progress = read_checkpoint(checkpoint)["progress"]
+    return {"episode": progress["episode"], "cpu_seconds": progress.get("cpu_seconds", progress["seconds"])}
+
+
+def _write_json(path: Path, data: dict) -> None:
+    with atomic_open(path) as handle:
+        handle.write(json.dumps(data, indent=2) + "\n")
+
+
+def run_recipe(recipe: Recipe, run_dir: Path, seed: int, echo: Callable[[str], None] = print) -> Path:
+    """Run (or resume) every stage of ``recipe`` in ``run_dir``, then choose the model on
+    validation; returns ``run_dir/model.pt``."""
+    run = _Run(recipe, Path(run_dir), seed, echo)
+    for index in range(len(recipe.stages)):
+        run.stage(index)
+    return run.select()
+
+
+class _Run:
+    """One run of a recipe: its directory, and the budget it has spent (for the progress lines)."""
+
+    def __init__(self, recipe: Recipe, run_dir: Path, seed: int, echo: Callable[[str], None]):
+        self.recipe, self.run_dir, self.seed, self.echo = recipe, run_dir, seed, echo
+        self.trainer: Trainer | None = None  # the trainer of the stage in progress
+        self.episodes, self.cpu_seconds = 0, 0.0  # of the stages finished
+        claim = run_dir / "recipe.json"  # a folder holds one run: a skipped or resumed stage is this recipe's
+        held = json.loads(claim.read_text()) if claim.exists() else None
+        if held is None:
+            _write_json(claim, {"recipe": str(recipe.source), "seed": seed, "text": recipe.text})
+        elif (held["seed"], held["text"]) != (seed, recipe.text):
+            raise RecipeError(f"{run_dir} holds a run of another recipe or seed ({claim}): use a new --run-dir")
+
+    def budget(self, episodes: int, cpu_seconds: float) -> str:
+        hours, budget = cpu_seconds / 3600, self.recipe.budget_cpu_hours
+        return (f"recipe {episodes}/{self.recipe.episodes} episodes, {hours:.2f}/{budget:g} CPU-h"
+                f"{' (over budget)' if hours > budget else ''}")
+
+    def stage(self, index: int) -> None:
+        """Train stage ``index`` to its end in chunks that stop at every episode its mean
+        needs (a snapshot of the weights is taken there), then write the mean."""
+        stage, count = self.recipe.stages[index], len(self.recipe.stages)
+        where = self.run_dir / stage.name
+        episode = _progress(where / "latest.pt")["episode"]
+        if episode >= stage.episodes:
+            self.echo(f"stage {index + 1}/{count} {stage.name}: complete ({stage.episodes} episodes), skipped")
+        else:
+            fresh = "" if stage.start == "scratch" else " (a fresh optimiser)"
+            resume = f", resuming at episode {episode}" if episode else ""
+            self.echo(f"stage {index + 1}/{count} {stage.name}: {stage.episodes} episodes from {stage.start}{fresh}"
+                      f"{resume} | {self.budget(self.episodes + episode, self.cpu_seconds)}")
+            cfg = stage_config(self.recipe, index, self.run_dir, self.seed)
+            while episode < stage.episodes:
+                self.snapshot(stage, episode)
+                self.trainer = None  # while it starts: its lines carry no budget yet
+                self.trainer = Trainer(cfg, where, log=lambda line: self.log(stage, line))
+                stop = min([e for e in stage.snapshots() if e > episode] + [stage.episodes])
+                self.trainer.train(episodes=stop - episode)
+                episode = self.trainer.episode
+            self.trainer = None
+        self.snapshot(stage, episode)
+        if stage.average is not None:
+            self.average(stage)
+        self.episodes += stage.episodes
+        self.cpu_seconds += _progress(where / "latest.pt")["cpu_seconds"]
+
+    def log(self, stage: Stage, line: str) -> None:
+        trainer = self.trainer
+        budget = "" if trainer is None else " | " + self.budget(self.episodes + trainer.episode,
+                                                               self.cpu_seconds + trainer.learner.cpu_seconds)
+        self.echo(f"{stage.name}: {line}{budget}")
+
+    def snapshot_file(self, stage: Stage, episode: int) -> Path:
+        return self.run_dir / stage.name / "snapshots" / f"episode{episode:05d}.pt"
+
+    def snapshot(self, stage: Stage, episode: int) -> None:
+        """Keep the weights of ``episode`` when the stage's mean needs them (once)."""
+        target = self.snapshot_file(stage, episode)
+        if episode in stage.snapshots() and not target.exists():
+            export_model(self.run_dir / stage.name / "latest.pt", target)
+
+    def average(self, stage: Stage) -> None:
+        """Write the stage's mean unless ``mean.pt`` already names exactly its snapshots."""
+        where = self.run_dir / stage.name
+        inputs = [self.snapshot_file(stage, e) for e in stage.snapshots()]
+        missing = [p.name for p in inputs if not p.exists()]
+        if missing:
+            raise RecipeError(f"{where}: the mean needs {', '.join(missing)}, which this run did not keep")
+        mean = where / "mean.pt"
+        if mean.exists() and read_checkpoint(mean).get("averaged_from") == average_sources(inputs):
+            return
+        write_average(inputs, mean)
+        self.echo(f"{stage.name}: mean.pt = the mean of episodes {', '.join(map(str, stage.snapshots()))}")
+
+    def select(self) -> Path:
+        """Play every candidate on the validation scenarios, copy the best to ``model.pt`` and
+        play it once more with the pheromone channel empty; ``selection.json`` has it all."""
+        from formic_eval import generate_matrix, settings_grid
+
+        v, folder = self.recipe.validation, self.run_dir / "validation"
+        grid = settings_grid([v.size], v.teams, [0.0], ["infinite"], v.steps)
+        matrix = generate_matrix(grid, v.scenarios, v.seed, folder / "scenarios")
+        scores = {name: self.validate(matrix, weights_file(self.run_dir, name), folder / name)
+                  for name in self.recipe.candidates}
+        chosen = max(self.recipe.candidates, key=lambda name: scores[name]["food_mean"])
+        model = self.run_dir / "model.pt"
+        with atomic_open(model, "wb") as handle:
+            handle.write(weights_file(self.run_dir, chosen).read_bytes())
+        empty = self.validate(matrix, model, folder / f"{chosen}-channel-empty", no_pheromones=True)
+        sampled = scores[chosen]["food_by_team"]
+        less = {n: 1 - empty["food_by_team"][n] / sampled[n] if sampled[n] else 0.0 for n in sampled}
+        _write_json(self.run_dir / "selection.json", {
+            "rule": SELECTION_RULE, "validation": asdict(v) | {"scenarios_dir": str(folder / "scenarios")},
+            "candidates": scores, "chosen": chosen, "model": str(model),
+            "channel_empty": empty | {"less_by_team": less},
+            "episodes": self.recipe.episodes, "cpu_hours": self.cpu_seconds / 3600})
+        self.echo(f"model: {model} = {chosen} (validation food: "
+                  + ", ".join(f"{name} {s['food_mean']:.1f}" for name, s in scores.items()) + ")")
+        self.echo(f"validation (seed {v.seed}: {v.size}x{v.size}, {v.steps} steps, {v.scenarios} per team size, "
+                  "sampling): agents / food / channel empty / less")
+        for n in sampled:
+            self.echo(f"  {n:4d}  {sampled[n]:8.1f}  {empty['food_by_team'][n]:8.1f}  {less[n]:5.0%}")
+        self.echo(self.budget(self.recipe.episodes, self.cpu_seconds))
+        return model
+
+    def validate(self, matrix: dict, model: Path, out: Path, no_pheromones: bool = False) -> dict:
+        """``model`` on the validation scenarios (episodes kept in ``out``, reused when there).
+        Their single-threaded episode clock joins the CPU budget."""
+        from formic_eval import PolicyOptions, evaluate
+        from formic_eval.matrix import file_digest
+        from formic_eval.runner import EpisodeLog
+
+        self.echo(f"validation: {model}{' (pheromone channel empty)' if no_pheromones else ''} -> {out}")
+        options = PolicyOptions(model=str(model), model_digest=file_digest(model), no_pheromones=no_pheromones)
+        summary = evaluate(matrix, ["formic"], options, out, workers=1, source=str(out.parent / "scenarios"))
+        if summary["interrupted"]:
+            raise KeyboardInterrupt
+        cells = summary["cells"]
+        self.cpu_seconds += sum(record["wall_s"] for record in EpisodeLog(out / "episodes.jsonl").load().values())
+        n = sum(c["n"] for c in cells)
+        return {"file": str(model), "digest": options.model_digest, "episodes": n,
+                "food_mean": sum(c["n"] * c["food_mean"] for c in cells) / n,
+                "food_by_team": {c["agents"]: c["food_mean"] for c in cells}}

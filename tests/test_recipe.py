@@ -1,0 +1,153 @@
+"""``formic train --recipe``: stages, warm starts, means and the choice on validation, resumable.
+
+The end-to-end runs use ``recipes/smoke.toml`` (three tiny stages, validation on 16x16 worlds),
+the same code path as ``recipes/paper.toml``."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import re
+from pathlib import Path
+
+import pytest
+import torch
+from click.testing import CliRunner
+
+from formic_agent.checkpoint import load_network, read_checkpoint
+from formic_cli.main import cli
+from formic_eval.matrix import layout_seed
+from formic_trainer.config import load_train_config
+from formic_trainer.recipe import SELECTION_RULE, load_recipe, run_recipe, stage_config, weights_file
+
+ROOT = Path(__file__).resolve().parents[1]
+SMOKE = load_recipe("smoke")
+
+
+def digest(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def run(run_dir: Path, stop_at: str | None = None) -> list[str]:
+    """Run the smoke recipe; with ``stop_at``, a kill (Ctrl-C) at the first line holding it."""
+    lines: list[str] = []
+
+    def echo(line: str) -> None:
+        lines.append(line)
+        if stop_at is not None and stop_at in line:
+            raise KeyboardInterrupt
+
+    if stop_at is None:
+        run_recipe(SMOKE, run_dir, seed=1, echo=echo)
+    else:
+        with pytest.raises(KeyboardInterrupt):
+            run_recipe(SMOKE, run_dir, seed=1, echo=echo)
+    return lines
+
+
+def test_a_recipe_runs_every_stage_then_chooses_on_validation_and_resumes_after_a_kill(tmp_path):
+    whole = tmp_path / "whole"
+    lines = run(whole)
+    assert "stage 2/3 middle: 4 episodes from first (a fresh optimiser) | recipe 4/12 episodes" in "\n".join(lines)
+    assert lines[-1].startswith("recipe 12/12 episodes, ")
+    # warm starts and seeds as the recipe says: `last` starts from `middle`'s mean
+    last = load_train_config(whole / "last" / "config.json")
+    assert last.init_weights == str(whole / "middle" / "mean.pt") and last.seed == 1003 and last.valid_coef == 0
+    assert load_train_config(whole / "middle" / "config.json").init_weights == str(whole / "first" / "latest.pt")
+    # the mean names the snapshots of episodes 2 and 4
+    sources = read_checkpoint(whole / "middle" / "mean.pt")["averaged_from"]
+    assert [s.split()[0] for s in sources] == ["episode00002.pt", "episode00004.pt"]
+    # the choice: validation episodes stored per candidate, on the seed-99 scenarios
+    selection = json.loads((whole / "selection.json").read_text())
+    scores = {name: selection["candidates"][name]["food_mean"] for name in SMOKE.candidates}
+    assert selection["rule"] == SELECTION_RULE
+    assert selection["chosen"] == max(SMOKE.candidates, key=scores.get)
+    assert digest(whole / "model.pt") == digest(weights_file(whole, selection["chosen"]))
+    first_seed = layout_seed(99, 16, 0.0, "infinite")
+    for name in [*SMOKE.candidates, selection["chosen"] + "-channel-empty"]:
+        records = [json.loads(line) for line in (whole / "validation" / name / "episodes.jsonl").open()]
+        assert sorted((r["agents"], r["seed"]) for r in records) == [(2, first_seed), (3, first_seed)]
+
+    # killed in the second stage, after its first episode set (its checkpoint is written)
+    parts = tmp_path / "parts"
+    run(parts, stop_at="| recipe 6/12 episodes")
+    assert read_checkpoint(parts / "middle" / "latest.pt")["progress"]["episode"] == 2
+    assert not (parts / "middle" / "snapshots" / "episode00002.pt").exists()
+    first = digest(parts / "first" / "latest.pt")
+    lines = run(parts)
+    assert lines[0] == "stage 1/3 first: complete (4 episodes), skipped"
+    assert "resuming at episode 2" in lines[1] and digest(parts / "first" / "latest.pt") == first
+    # the resumed run ends where the uninterrupted one did
+    for key, value in load_network(whole / "model.pt")[0].state_dict().items():
+        assert torch.equal(value, load_network(parts / "model.pt")[0].state_dict()[key]), key
+
+    # once more, through the command: nothing is trained again and the means are not rewritten
+    stamps = {p: p.stat().st_mtime_ns for p in parts.glob("*/*.pt")}
+    result = CliRunner().invoke(cli, ["train", "--recipe", "smoke", "--seed", "1", "--run-dir", str(parts)])
+    assert result.exit_code == 0, result.output
+    assert result.output.count("complete (4 episodes), skipped") == 3 and " ep " not in result.output
+    assert {p: p.stat().st_mtime_ns for p in parts.glob("*/*.pt")} == stamps
+    # another seed is another run
+    result = CliRunner().invoke(cli, ["train", "--recipe", "smoke", "--seed", "2", "--run-dir", str(parts)])
+    assert result.exit_code == 1 and "another recipe or seed" in result.output
+
+
+SMOKE_TEXT = (ROOT / "recipes" / "smoke.toml").read_text()
+
+
+@pytest.mark.parametrize("old, new, message", [
+    ("[[stage]]", "[[stage]", "not valid TOML"),
+    ("valid_coef = 0.0", "valid_coeff = 0.0", "stage 'last'.set.valid_coeff is not a training setting"),
+    ("valid_coef = 0.0", 'valid_coef = "none"', "stage 'last'.set.valid_coef must be float"),
+    ("valid_coef = 0.0", "seed = 3", "stage 'last'.set.seed: given by --seed"),
+    ("valid_coef = 0.0", 'training_filter = "strict"', "training_filter must be one of"),
+    ('start = "middle.mean"', 'start = "first.mean"', "stage 'last': start 'first.mean' is not"),
+    ('start = "first"', 'start = "last"', "stage 'middle': start 'last' is not"),
+    ("episodes = 4\nstart = \"first\"", "episodes = 5\nstart = \"first\"", "multiples of its 2 worlds"),
+    ("world_sizes = [[16, 16], [16, 20]]", "world_sizes = [[16, 16], [16]]", "world_sizes[1] must be a list of 2"),
+    ('candidates = ["middle.mean", "last.mean"]', 'candidates = ["middle.mean", "nothing"]', "candidates 'nothing'"),
+    ("scenarios = 1", "scenarios = 0", "validation.scenarios must be a whole number >= 1"),
+])
+def test_a_malformed_recipe_is_one_line_of_error_before_anything_runs(tmp_path, old, new, message):
+    assert old in SMOKE_TEXT
+    recipe = tmp_path / "bad.toml"
+    recipe.write_text(SMOKE_TEXT.replace(old, new, 1))
+    result = CliRunner().invoke(cli, ["train", "--recipe", str(recipe), "--seed", "1",
+                                      "--run-dir", str(tmp_path / "run")])
+    assert result.exit_code == 1
+    assert result.output.startswith(f"Error: {recipe}: ") and result.output.count("\n") == 1, result.output
+    assert message in result.output
+    assert not (tmp_path / "run").exists()
+
+
+def test_single_run_options_do_not_mix_with_a_recipe(tmp_path):
+    for args in (["--recipe", "smoke", "--seed", "1", "--set", "lr=0.1"], ["--seed", "1"]):
+        result = CliRunner().invoke(cli, ["train", *args, "--run-dir", str(tmp_path / "run")])
+        assert result.exit_code == 2 and "--recipe" in result.output
+    assert not (tmp_path / "run").exists()
+
+
+def test_the_paper_recipe_validates_on_seeds_no_test_set_uses():
+    """The stored test scenarios (eval/), `formic eval`'s default seed 0 and the README's 7 (any
+    size, obstacle density and capacity, 50 scenarios each) and `formic scenarios generate`'s
+    default seeds 0-49 never meet the validation scenarios."""
+    v = load_recipe("paper").validation
+    first = layout_seed(v.seed, v.size, 0.0, "infinite")
+    validation = set(range(first, first + v.scenarios))
+    stored = {int(re.search(r"_seed(\d+)\.json$", p.name)[1]) for p in ROOT.glob("eval/**/scenarios/*.json")}
+    generated = {layout_seed(seed, size, obstacles, capacity) + k for seed in (0, 7) for size in (32, 64, 128)
+                 for obstacles in (0.0, 0.05) for capacity in ("infinite", "finite") for k in range(50)}
+    assert stored and stored <= generated
+    assert not validation & (generated | set(range(50)))
+
+
+@pytest.mark.parametrize("index, lineage", [(2, "paper-feedback-nonlearning"), (3, "paper-novalid"),
+                                            (4, "paper-novalid128")])
+def test_the_paper_recipes_last_stages_train_as_the_lineage_did(index, lineage):
+    """Stages 4-6 of models/formic_paper.md, setting for setting (the highway schedule, unused
+    without the curriculum, is inherited from the recipe's first stage)."""
+    ours = stage_config(load_recipe("paper"), index, Path("run"), seed=1).to_dict()
+    theirs = load_train_config(ROOT / "models" / "training" / lineage / "config.json").to_dict()
+    differ = {key for key in ours if json.dumps(ours[key]) != json.dumps(theirs[key])}
+    assert differ == {"seed", "init_weights", "total_episodes", "curriculum_start", "curriculum_end"}
+    assert ours["curriculum"] is False
