@@ -50,7 +50,7 @@ def main() -> None:
             # Reliable: the QoS of the world's per-agent topics. Actions keep 100 (formic_ros.qos.STREAM_WRITER), so
             # a recorder that falls behind still gets them all; observations depth 1 (formic_ros.qos.LATEST): a node
             # slower than the world answers the newest step, never a backlog.
-            # The names are formic_ros.qos.AGENT_ACTION and AGENT_OBSERVATION (literal: this example stands alone).
+            # The names are formic_topics.AGENT_ACTION and AGENT_OBSERVATION (literal: this example stands alone).
             self.publisher = self.create_publisher(AgentAction, "~/action", 100)
             self.create_subscription(AgentObservation, "~/observation", self.on_observation, 1)
             # Claim the agent (latched: formic_ros.qos.LATCHED), then follow the world's verdict.

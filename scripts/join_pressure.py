@@ -26,7 +26,7 @@ import torch
 from formic_agent.checkpoint import load_network
 from formic_cli.options import training_config
 from formic_trainer.actor import Actor
-from formic_trainer.algorithm import policy_losses, update_data, update_tensors
+from formic_trainer.algorithm import policy_losses, update_tensors
 from formic_trainer.train import play_episode_set
 from formic_trainer.worlds import MetaAgents
 
@@ -43,7 +43,7 @@ def rollout_batches(cfg, net, episodes: int) -> list[dict[str, torch.Tensor]]:
     chunks = []
     for episode in range(episodes):
         play_episode_set(cfg, envs, actor, episode, lambda rollout, _env_steps: chunks.append(rollout))
-    return [update_tensors(cfg, update_data(cfg, chunk)) for chunk in chunks]
+    return [update_tensors(cfg, chunk) for chunk in chunks]
 
 
 # Where a term's gradient comes from: the free steps of the rollout, split three ways.
@@ -84,7 +84,7 @@ def join_probability_gradient(net, batches) -> tuple[float, int, list[torch.Tens
     params = list(net.parameters())
     chosen = []
     for batch in batches:
-        logits, _, _ = net(batch["obs"], (batch["h0"], batch["c0"]), batch["extra"])
+        logits, _, _ = net(batch["observations"], (batch["h0"], batch["c0"]), batch["extra_inputs"])
         where = batch["train_mask"][..., 4] & (batch["loss_mask"] > 0)
         chosen.append(torch.softmax(logits, dim=-1)[..., 4][where])
     p = torch.cat(chosen)

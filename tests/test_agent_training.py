@@ -195,7 +195,7 @@ def test_team_reward_mixes_each_reward_with_the_team_mean():
     assert share_rewards(rewards, 0.0) is rewards  # off: the paper's individual rewards untouched
     team_mean = np.float32(rewards.astype(np.float32).mean())
     mixed = share_rewards(rewards, 0.5)
-    assert mixed.dtype == np.float64 and (mixed.astype(np.float32) == mixed).all()  # float32 values
+    assert mixed.dtype == np.float32  # as the ROS observation messages carry rewards
     np.testing.assert_allclose(mixed, 0.5 * rewards + 0.5 * team_mean, rtol=1e-6)
     np.testing.assert_allclose(share_rewards(rewards, 1.0), np.full(4, team_mean), rtol=1e-6)
     assert mixed.sum() == pytest.approx(rewards.sum(), rel=1e-6)  # sharing moves reward, never adds it
@@ -223,9 +223,10 @@ def test_demonstrator_sees_what_the_learners_see_and_targets_loaded_agents_near_
     twin.reset(24, world.scenario.seed)
     rng = np.random.default_rng(0)
     for _ in range(12):
-        obs, _, valid, _, _ = envs.observe()
+        frame = envs.observe()
         targets, wanted = envs.demonstrations()
-        np.testing.assert_array_equal(targets, twin.act(AgentBatch.from_world(world, observations=obs, action_mask=valid)))
+        np.testing.assert_array_equal(targets, twin.act(AgentBatch.from_world(
+            world, observations=frame.observations, action_mask=frame.action_mask)))
         near = np.abs(world.pos - 11.5).max(axis=1) <= 3
         np.testing.assert_array_equal(wanted, near & ~world.queued)
         assert wanted.any()
@@ -243,10 +244,11 @@ def _loss_batch(T: int, B: int, gen: torch.Generator, **fields) -> dict[str, tor
     """A batch for policy_losses (the cpu network's shapes): random observations, actions,
     returns and advantages, every action valid and every step free unless ``fields`` say otherwise."""
     return {
-        "obs": torch.rand(T, B, 8, 11, 11, generator=gen), "extra": torch.zeros(T, B, 4),
+        "observations": torch.rand(T, B, 8, 11, 11, generator=gen), "extra_inputs": torch.zeros(T, B, 4),
         "h0": torch.zeros(1, B, 64), "c0": torch.zeros(1, B, 64),
-        "actions": torch.randint(0, 5, (T, B), generator=gen), "logp": torch.full((T, B), -1.6),
-        "train_mask": torch.ones(T, B, 5, dtype=torch.bool), "any_valid": torch.ones(T, B),
+        "actions": torch.randint(0, 5, (T, B), generator=gen), "logprobs": torch.full((T, B), -1.6),
+        "train_mask": torch.ones(T, B, 5, dtype=torch.bool), "sample_mask": torch.ones(T, B, 5, dtype=torch.bool),
+        "any_valid": torch.ones(T, B),
         "loss_mask": torch.ones(T, B), "value_mask": torch.ones(T, B), "returns": torch.rand(T, B, generator=gen),
         "advantages": torch.rand(T, B, generator=gen), **fields,
     }
@@ -261,7 +263,7 @@ def test_imitation_loss_is_the_cross_entropy_of_the_demonstrators_actions():
     batch = _loss_batch(T, B, gen, expert_actions=torch.randint(0, 5, (T, B), generator=gen),
                         imitation_mask=torch.tensor([[1.0, 0, 1, 0]] * T))
     terms = policy_losses(net, cfg, batch)
-    logits, _, _ = net(batch["obs"], (batch["h0"], batch["c0"]), batch["extra"])
+    logits, _, _ = net(batch["observations"], (batch["h0"], batch["c0"]), batch["extra_inputs"])
     ce = torch.nn.functional.cross_entropy(logits[:, [0, 2]].reshape(-1, 5), batch["expert_actions"][:, [0, 2]].reshape(-1))
     assert terms["imitation"].item() == pytest.approx(ce.item(), rel=1e-5)
     without = policy_losses(net, cfg, {k: v for k, v in batch.items() if k not in ("expert_actions", "imitation_mask")})
@@ -281,7 +283,7 @@ def test_queued_steps_train_the_critic_only_with_queued_value_loss(queued_value_
     value_mask = torch.tensor([[1.0, 1, 1], [1, 1, 1], [1, 1, 0], [1, 1, 1]])
     batch = _loss_batch(T, B, gen, loss_mask=loss_mask, value_mask=value_mask)
     terms = policy_losses(net, cfg, batch)
-    _, values, _ = net(batch["obs"], (batch["h0"], batch["c0"]), batch["extra"])
+    _, values, _ = net(batch["observations"], (batch["h0"], batch["c0"]), batch["extra_inputs"])
     err = 0.5 * (values - batch["returns"]) ** 2
     expected = value_mask if queued_value_loss else loss_mask * value_mask
     assert terms["value"].item() == pytest.approx(((err * expected).sum() / expected.sum()).item(), rel=1e-5)
@@ -301,7 +303,7 @@ def test_join_validity_loss_is_the_bce_of_the_join_logit_on_free_steps():
     loss_mask = torch.tensor([[1.0, 1, 0, 1], [1, 0, 1, 1], [1, 1, 1, 0]])
     batch = _loss_batch(T, B, gen, train_mask=train_mask, loss_mask=loss_mask)
     terms = policy_losses(net, make_config("cpu", valid_join_coef=0.5), batch)
-    logits, _, _ = net(batch["obs"], (batch["h0"], batch["c0"]), batch["extra"])
+    logits, _, _ = net(batch["observations"], (batch["h0"], batch["c0"]), batch["extra_inputs"])
     bce = torch.nn.functional.binary_cross_entropy_with_logits(logits[..., 4], train_mask[..., 4].float(), reduction="none")
     assert terms["valid_join"].item() == pytest.approx(((bce * loss_mask).sum() / loss_mask.sum()).item(), rel=1e-5)
     plain = policy_losses(net, make_config("cpu"), batch)
@@ -348,10 +350,10 @@ def test_a_committed_checkpoint_resumes_weights_optimiser_and_counters(tmp_path)
     actor.start_episode(learner.episode)
     frame = envs.observe()
     for _ in range(8):
-        rewards, _ = envs.step(actor.act(frame))
-        actor.reward(rewards)
+        envs.step(actor.act(frame))
         frame = envs.observe()
-    assert np.isfinite(learner.learn(actor.rollout(frame.obs, frame.extra))["loss"])
+        actor.reward(frame.rewards)
+    assert np.isfinite(learner.learn(actor.rollout(frame, done=True, food=0.0))["loss"])
     # a checkpoint from before the CPU clock resumes with its wall seconds in its place
     assert "cpu_seconds" not in progress and learner.cpu_seconds == progress["seconds"]
     learner.end_episodes(1, {}, seconds=2.0, cpu_seconds=1.5)
@@ -415,9 +417,9 @@ def test_training_frames_and_the_learned_policy_give_the_same_action_feedback():
     effective = 0
     for _ in range(24):
         frame = envs.observe()
-        batch = AgentBatch.from_world(world, observations=frame.obs, action_mask=frame.valid)
+        batch = AgentBatch.from_world(world, observations=frame.observations, action_mask=frame.action_mask)
         want = policy.feedback.features(batch.agent_ids, batch.positions, batch.queued)
-        assert frame.extra[:, -want.shape[1]:].tolist() == want.tolist()
+        assert frame.extra_inputs[:, -want.shape[1]:].tolist() == want.tolist()
         effective += int(want[:, -1].sum())
         envs.step(policy.act(batch))
     assert effective > 0

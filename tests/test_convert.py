@@ -4,6 +4,8 @@ resources, pheromones), through CDR, and about ten times smaller."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -16,6 +18,8 @@ from formic_agent.policy import AgentBatch  # noqa: E402
 from formic_record import compact  # noqa: E402
 from formic_record.replay import RecordedState  # noqa: E402
 from formic_ros import convert, wire  # noqa: E402
+from formic_topics import EXTRA_INPUT_COUNT  # noqa: E402
+from formic_trainer.rollout import Rollout  # noqa: E402
 from formic_world import World, WorldConfig, generate_scenario  # noqa: E402
 from formic_world.geometry import EAST, JOIN, NORTH, WEST  # noqa: E402
 from formic_world.observation import CH_PHEROMONE, CH_RESOURCE_ENTRY  # noqa: E402
@@ -184,35 +188,44 @@ def test_scenario_and_state_round_trip():
     assert difference_from(world, RecordedState.from_message(state)) is None
 
 
-def rollout_arrays(steps: int = 3, agents: int = 2, optional: bool = True) -> dict[str, np.ndarray]:
+def random_rollout(imitation: bool, steps: int = 3, agents: int = 2, rnn: int = 4) -> Rollout:
     rng = np.random.default_rng(0)
-    arrays = {
-        "agent_ids": np.array([5, 7][:agents], dtype=np.int64),
-        "obs": rng.random((steps + 1, agents, 8, 11, 11), dtype=np.float32),
-        "actions": rng.integers(0, 5, (steps, agents)),
-        "rewards": rng.random((steps, agents), dtype=np.float32),
-        "train_mask": rng.random((steps, agents, 5)) < 0.5,
-        "loss_mask": (rng.random((steps, agents)) < 0.5).astype(np.float32),
-        "value_mask": (rng.random((steps, agents)) < 0.5).astype(np.float32),
-    }
-    if optional:
-        arrays["sample_mask"] = rng.random((steps, agents, 5)) < 0.5
-        arrays["extra"] = rng.random((steps + 1, agents, convert.EXTRA_INPUT_COUNT), dtype=np.float32)
-    return arrays
+
+    def floats(*shape: int) -> np.ndarray:
+        return rng.random(shape, dtype=np.float32)
+
+    def flags(*shape: int) -> np.ndarray:
+        return rng.random(shape) < 0.5
+
+    return Rollout(
+        weights_version=3, episode=2, done=True, food=1.5, agent_ids=np.array([5, 7][:agents], dtype=np.int64),
+        observations=floats(steps + 1, agents, 8, 11, 11), extra_inputs=floats(steps + 1, agents, EXTRA_INPUT_COUNT),
+        actions=rng.integers(0, 5, (steps, agents)), logprobs=floats(steps, agents), values=floats(steps, agents),
+        next_value=floats(agents), h0=floats(1, agents, rnn), c0=floats(1, agents, rnn), rewards=floats(steps, agents),
+        train_mask=flags(steps, agents, 5), sample_mask=flags(steps, agents, 5), loss_mask=flags(steps, agents),
+        value_mask=flags(steps, agents),
+        expert_actions=rng.integers(0, 5, (steps, agents)) if imitation else None,
+        imitation_mask=flags(steps, agents) if imitation else None,
+    )
 
 
-@pytest.mark.parametrize("optional", [True, False])
-def test_rollouts_round_trip(optional):
-    want = rollout_arrays(optional=optional)
-    msg, _ = through_cdr(convert.encode_rollout(want, weights_version=3, host="h", episode=2, food=1.5))
-    assert (msg.weights_version, msg.host, msg.episode, msg.food, msg.n_steps) == (3, "h", 2, 1.5, 3)
+@pytest.mark.parametrize("imitation", [False, True])
+def test_rollouts_round_trip_field_for_field(imitation):
+    want = random_rollout(imitation)
+    msg, _ = through_cdr(convert.encode_rollout(want))
+    assert (msg.n_steps, msg.n_agents) == (3, 2)
     got = convert.decode_rollout(msg)
-    assert got.keys() == want.keys()
-    for key in want:
-        assert got[key].dtype == want[key].dtype and np.array_equal(got[key], want[key]), key
-    msg.rewards = msg.rewards[:-1]
-    with pytest.raises(ValueError, match="Rollout.rewards"):
-        convert.decode_rollout(msg)
+    for field in dataclasses.fields(Rollout):
+        a, b = getattr(got, field.name), getattr(want, field.name)
+        if isinstance(b, np.ndarray):
+            assert a.dtype == b.dtype and np.array_equal(a, b), field.name
+        else:
+            assert a == b and type(a) is type(b), field.name
+    for name in ("rewards", "h0", "train_mask"):
+        broken, _ = through_cdr(convert.encode_rollout(want))
+        setattr(broken, name, getattr(broken, name)[:-1])
+        with pytest.raises(ValueError, match=f"Rollout.{name}"):
+            convert.decode_rollout(broken)
 
 
 def test_weights_round_trip():

@@ -104,23 +104,30 @@ SAMPLES = {
         policies="formic:0-31",
     ),
     "Rollout": dict(
-        weights_version=17,
-        host="host-0",
-        episode=3,
         n_agents=N,
         n_steps=T,
         channels=C,
         size=S,
+        weights_version=17,
+        episode=3,
+        done=True,
+        food=42.0,
         agent_ids=array.array("I", [0, 1, 2]),
         observations=f32((T + 1) * N * C * S * S),
+        extra_inputs=f32((T + 1) * N * 10, 0.25),
         actions=u8(T * N, 5),
+        logprobs=f32(T * N, -0.125),
+        values=f32(T * N, 0.5),
+        next_value=f32(N, 0.5),
+        h0=f32(N * 4, 0.125),
+        c0=f32(N * 4, -0.125),
         rewards=f32(T * N, 0.5),
-        valid_masks=u8(T * N * 5, 2),
+        train_mask=u8(T * N * 5, 2),
+        sample_mask=u8(T * N * 5, 2),
         loss_mask=bytes([1, 1, 0, 1, 1, 1]),
         value_mask=bytes([1, 0, 1, 1, 1, 1]),
-        sample_masks=u8(T * N * 5, 2),
-        extra_inputs=f32((T + 1) * N * 4, 0.25),
-        food=42.0,
+        expert_actions=u8(T * N, 5),
+        imitation_mask=bytes([0, 1, 1, 0, 1, 1]),
     ),
     "Weights": dict(
         version=5,
@@ -225,6 +232,10 @@ def test_mcap_ros2_decodes_our_types():
 
 
 def test_observation_encodings():
-    """ObservationBatch names its encodings; a message that only fills ``data`` is float32."""
-    assert (msg_mod.ObservationBatch.ENCODING_FLOAT32, msg_mod.ObservationBatch.ENCODING_COMPACT) == (0, 1)
+    """ObservationBatch names its encodings (formic_topics restates them for readers without ROS);
+    a message that only fills ``data`` is float32."""
+    import formic_topics
+
+    assert (msg_mod.ObservationBatch.ENCODING_FLOAT32, msg_mod.ObservationBatch.ENCODING_COMPACT) == (
+        formic_topics.ENCODING_FLOAT32, formic_topics.ENCODING_COMPACT) == (0, 1)
     assert msg_mod.ObservationBatch().encoding == msg_mod.ObservationBatch.ENCODING_FLOAT32

@@ -117,6 +117,7 @@ import numpy as np, rclpy
 from formic_agent.policy import AgentBatch
 from formic_interfaces.msg import AgentAction, AgentObservation
 from formic_ros import convert, qos
+import formic_topics as topics
 from formic_ros.agent_host import PARTIAL_WAIT_S, AgentHost
 from formic_ros.env import ros_session
 from formic_ros.ownership import Ownership
@@ -129,13 +130,13 @@ with ros_session(int(sys.argv[1])) as executor:
     node = rclpy.create_node("world", namespace="/formic")  # the world's side of the exchange, by hand
     ownership = Ownership(node, lambda msg, topic: None,
                           lambda kind, topic, profile, callback: node.create_subscription(kind, topic, callback, profile))
-    node.create_publisher(type(convert.encode_scenario(scenario, "")), qos.SCENARIO, qos.LATCHED).publish(
+    node.create_publisher(type(convert.encode_scenario(scenario, "")), topics.SCENARIO, qos.LATCHED).publish(
         convert.encode_scenario(scenario, "random"))
-    obs_pubs = [node.create_publisher(AgentObservation, qos.agent_topic(a, qos.AGENT_OBSERVATION), qos.STREAM)
+    obs_pubs = [node.create_publisher(AgentObservation, topics.agent_topic(a, topics.AGENT_OBSERVATION), qos.STREAM)
                 for a in range(4)]
     heard = []  # (seconds since step 0 went out, agent, action)
     for a in range(4):
-        node.create_subscription(AgentAction, qos.agent_topic(a, qos.AGENT_ACTION),
+        node.create_subscription(AgentAction, topics.agent_topic(a, topics.AGENT_ACTION),
                                  lambda m: heard.append((time.monotonic() - sent, m.agent_id, m.action)), qos.STREAM)
     host = AgentHost([0, 1, 2, 3], "random")
     for n in [node, *host.nodes]:

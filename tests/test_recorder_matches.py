@@ -17,6 +17,7 @@ from rclpy.executors import SingleThreadedExecutor
 from std_msgs.msg import Float64, String
 from formic_record.bag import BagWriter
 from formic_ros import qos
+import formic_topics as topics
 from formic_ros.graph import REPORT_GRAPH_LAG_S, RecorderReports, recorders_matched
 from formic_ros.recorder import Recorder, RecorderOptions
 
@@ -45,7 +46,7 @@ silent.create_subscription(Float64, "score", lambda m: None, qos.LOG)
 executor.add_node(silent)
 results["writer_matched"] = spin_until(lambda: score.get_subscription_count() == 1)
 results["silent"] = spin_until(matched, 1.0)
-report = silent.create_publisher(String, qos.RECORDER_MATCHES, qos.LATCHED)
+report = silent.create_publisher(String, topics.RECORDER_MATCHES, qos.LATCHED)
 report.publish(String(data="not json"))
 own_id = "/formic/recorder#1-silent"
 report.publish(String(data=json.dumps({"recorder": own_id, "publishers": {"/formic/score": 0}})))

@@ -47,6 +47,7 @@ from formic_interfaces.msg import (ActionBatch, AgentAction, AgentObservation, O
 from std_msgs.msg import Float64
 from formic_agent.policy import AgentBatch
 from formic_ros import convert, qos, viewer_msgs
+import formic_topics as topics
 from formic_world import World, WorldConfig, generate_scenario
 
 steps, rate_hz, recorders = int(sys.argv[1]), float(sys.argv[2]), int(sys.argv[3])
@@ -57,7 +58,7 @@ types = {"scenario": ScenarioDescription, "state": WorldState, "applied_actions"
          "clock": viewer_msgs.Clock, "agent_action": AgentAction, "observations": ObservationBatch,
          "map": viewer_msgs.OccupancyGrid, "agent_markers": viewer_msgs.MarkerArray}
 names = {"agent_action": "agent_0/action", "clock": "/clock"}
-leaf = {"agent_action": qos.AGENT_ACTION}
+leaf = {"agent_action": topics.AGENT_ACTION}
 pubs = {k: node.create_publisher(t, names.get(k, k), qos.TOPICS[leaf.get(k, names.get(k, k))].qos) for k, t in types.items()}
 for a in range(N):
     pubs[f"agent_{a}/observation"] = node.create_publisher(AgentObservation, f"agent_{a}/observation", qos.STREAM)
@@ -268,11 +269,13 @@ def test_replay_verify_accepts_the_recording(session):
         " recorded messages on" in done.stdout
 
 
-def _tampered_copy(source: Path, target: Path, change) -> None:
-    """Rewrite a recording with ``change(topic, decoded, index)`` applied to its messages."""
+def _tampered_copy(source: Path, target: Path, change, keep=lambda topic, msg, index: True,
+                   summary: str | None = None) -> None:
+    """Rewrite a recording with ``change(topic, decoded, index)`` applied to its messages, only
+    those ``keep(topic, decoded, index)`` accepts, and a world summary ``summary`` (JSON) at the end."""
     recording = Recording(source)
     store = recording.typestore()
-    with BagWriter(target, typestore=store) as writer:
+    with BagWriter(target) as writer:
         for topic, info in recording.topics.items():
             writer.add_topic(topic, info.msgtype, info.qos)
         seen: dict[str, int] = {}
@@ -282,7 +285,13 @@ def _tampered_copy(source: Path, target: Path, change) -> None:
             data = m.data
             if change(m.topic, msg, index):
                 data = bytes(store.serialize_cdr(msg, m.msgtype))
-            writer.write(m.topic, m.log_time, data)
+            if keep(m.topic, msg, index):
+                writer.write(m.topic, m.log_time, data)
+        if summary is not None:
+            string = writer.typestore.types["std_msgs/msg/String"]
+            writer.add_topic("/formic/summary", "std_msgs/msg/String")
+            writer.write("/formic/summary", m.log_time + 1,
+                         writer.typestore.serialize_cdr(string(summary), string.__msgtype__))
         writer.set_run_info(recording.run_info)
 
 
@@ -322,6 +331,112 @@ def test_replay_verify_detects_a_tampered_state(session):
     _tampered_copy(session["good"], target, change)
     report = verify_recording(target)
     assert not report.ok and "mismatch at step 40: score" in report.summary()
+
+
+def _no_change(topic, msg, index) -> bool:
+    return False
+
+
+def _stopped_copy(session, name: str, step: int, change=_no_change, summary: str | None = None) -> Path:
+    """The good recording as a recorder stopped during step ``step`` leaves it (each topic has
+    its own reader): the state and clock of step ``step + 1`` are in, the actions applied at
+    ``step`` are not (still queued), nor is anything later."""
+    def keep(topic, msg, index):
+        if topic in ("/formic/applied_actions", DISCOVERED_TOPIC):
+            return msg.step < step
+        if topic == "/formic/state":
+            return msg.step <= step + 1
+        if topic == "/clock":
+            return msg.clock.sec * 10 + msg.clock.nanosec // 100_000_000 <= step + 1
+        if topic in ("/formic/map", "/formic/agent_markers"):
+            stamp = msg.header.stamp if topic == "/formic/map" else msg.markers[0].header.stamp
+            return stamp.sec * 10 + stamp.nanosec // 100_000_000 <= step
+        if topic == "/formic/score":
+            return index <= step // 10  # one with each map, every 10 steps
+        return getattr(msg, "step", 0) <= step
+
+    target = session["tmp"] / name
+    _tampered_copy(session["good"], target, change, keep, summary)
+    return target
+
+
+@pytest.mark.parametrize("step", [0, 37, STEPS - 1])
+def test_a_recording_stopped_mid_step_verifies_up_to_its_last_complete_step(session, step):
+    report = verify_recording(_stopped_copy(session, f"stopped-{step}", step))
+    assert report.ok and report.interrupted_at == step, report.summary()
+    assert report.states_checked == step + 1 and not report.mismatches
+    assert (f"recording ends at step {step} of {STEPS} (interrupted); 2 recorded message(s) of step {step + 1} "
+            "after it not checked") in report.summary()
+
+
+def test_replay_verify_says_where_an_interrupted_recording_ends(session):
+    done = formic("replay", str(_stopped_copy(session, "stopped-cli", 50)), "--verify")
+    assert done.returncode == 0 and done.stdout.startswith("OK"), done.stdout + done.stderr
+    assert f"recording ends at step 50 of {STEPS} (interrupted)" in done.stdout
+
+
+def test_a_stopped_recording_still_fails_a_mismatch_before_the_stop(session):
+    def change(topic, msg, index):
+        if topic == "/formic/state" and index == 10:
+            msg.score += 1.0
+            return True
+        return False
+
+    report = verify_recording(_stopped_copy(session, "stopped-tampered", 60, change))
+    assert not report.ok and "/formic/state: mismatch at step 10: score" in report.summary()
+
+
+def test_a_recording_that_lost_applied_actions_fails(session):
+    """Not an interruption: a step's applied actions missing before recorded ones, or the last
+    ones missing although the world's summary says it played the episode to its end."""
+    gap = session["tmp"] / "gap"
+    _tampered_copy(session["good"], gap, _no_change,
+                   keep=lambda topic, msg, index: not (topic == "/formic/applied_actions" and msg.step == 50))
+    report = verify_recording(gap)
+    assert not report.ok and report.interrupted_at is None
+    assert f"no applied actions for step 50 but for {STEPS - 51} later step(s) from step 51" in report.summary()
+    finished = _stopped_copy(session, "stopped-finished", 60, summary=json.dumps({"seed": 3, "steps": STEPS}))
+    report = verify_recording(finished)
+    assert not report.ok and "but the world finished the episode" in report.summary(), report.summary()
+
+
+def _index_record_offset(mcap: Path, kind: str) -> int:
+    """Where a message index record (the second chunk's first) or the first chunk index record
+    (in the summary section) starts."""
+    from mcap.reader import make_reader
+
+    with mcap.open("rb") as handle:
+        summary = make_reader(handle).get_summary()
+    if kind == "message index":
+        chunk = sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset)[1]
+        return min(chunk.message_index_offsets.values())
+    data = mcap.read_bytes()
+    at = int.from_bytes(data[-8 - 29 + 9:-8 - 29 + 17], "little")  # the footer's summary start
+    while data[at] != 0x08:  # chunk index opcode
+        at += 9 + int.from_bytes(data[at + 1:at + 9], "little")
+    return at
+
+
+@pytest.mark.parametrize("kind", ["message index", "chunk index"])
+def test_repair_keeps_every_chunk_when_an_index_record_is_damaged(session, kind):
+    import shutil
+
+    target = session["tmp"] / f"damaged-{kind.replace(' ', '-')}"
+    shutil.copytree(session["good"], target)
+    counts = {t: i.count for t, i in Recording(target).topics.items()}
+    mcap = target / "good.mcap"
+    data = bytearray(mcap.read_bytes())
+    data[_index_record_offset(mcap, kind) + 2] ^= 0x40  # its length: the records after it no longer line up
+    mcap.write_bytes(bytes(data))
+    assert Recording(target).corruption() is not None
+    done = formic("replay", str(target), "--repair", "--json")
+    assert done.returncode == 0, done.stdout + done.stderr
+    result = json.loads(done.stdout)
+    assert result["corrupted"] and result["messages"] == sum(counts.values()) and result["dropped"] == 0, result
+    repaired = Recording(target)
+    assert {t: i.count for t, i in repaired.topics.items()} == counts
+    report = verify_recording(target)
+    assert report.ok and not report.mismatches and report.states_checked == STEPS + 1, report.summary()
 
 
 def test_render_recording_writes_a_gif(session):
@@ -458,10 +573,12 @@ def test_a_flipped_file_byte_is_a_clean_error(session, where):
     assert len(verify.stderr.strip().splitlines()) == 1, verify.stderr
     assert "nothing to repair" not in repair.stdout
     assert "corrupted" in repair.stdout + repair.stderr, repair.stdout + repair.stderr
-    if repair.returncode == 0:  # rebuilt: what it kept verifies
+    if repair.returncode == 0:  # rebuilt: what it kept verifies, and a lost chunk shifts no /clock
         assert "dropped" in repair.stdout
         kept = session["tmp"] / f"corrupt-{where}--repair"
         assert Recording(kept).corruption() is None
+        report = verify_recording(kept)
+        assert report.ok and not report.mismatches, report.summary()
 
 
 @pytest.mark.parametrize("signals", [(signal.SIGINT, signal.SIGINT), (signal.SIGHUP,), (signal.SIGTERM, signal.SIGHUP)])
@@ -504,3 +621,28 @@ def test_run_record_holds_every_message_of_every_topic(tmp_path):
     expected |= {f"/formic/agent_{a}/action": applied for a in range(agents)}
     assert {t: sorted(stepped.get(t, ())) for t in expected} == {t: sorted(v) for t, v in expected.items()}
     assert verify_recording(out).ok
+
+
+@pytest.mark.parametrize("signals", [(signal.SIGHUP,), (signal.SIGINT,) * 3], ids=["sighup", "three-sigint"])
+def test_an_interrupted_run_closes_its_recording_and_it_verifies(tmp_path, signals):
+    """A closing terminal's SIGHUP, or Ctrl-C pressed three times, mid-episode: every process
+    stops, the recording is closed (metadata.yaml, an index) and verifies up to where it ends."""
+    from ros_helpers import Spawner, descendants, fresh_domain_id, running
+
+    spawner, out = Spawner(tmp_path, fresh_domain_id()), tmp_path / "run"
+    try:
+        run = spawner.formic("run", "run", "--agents", "4", "--size", "16", "--steps", "100000", "--policy", "csaf11",
+                             "--record", str(out), "--domain-id", str(spawner.domain_id), limit_s=150)
+        run.wait_for_text("stepping:", timeout=90)
+        time.sleep(0.5)  # some steps into the episode
+        family = descendants(run.pid)
+        for sig in signals:
+            run.popen.send_signal(sig)
+            time.sleep(0.01)
+        assert run.wait(timeout=60) == 130, run.output()[-3000:]
+        assert [pid for pid in family if running(pid)] == [], "orphans"
+    finally:
+        spawner.reap_all()
+    assert (out / "metadata.yaml").is_file() and Recording(out).complete, run.output()[-3000:]
+    done = formic("replay", str(out), "--verify")
+    assert done.returncode == 0 and "(interrupted)" in done.stdout, done.stdout + done.stderr

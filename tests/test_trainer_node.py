@@ -9,6 +9,7 @@ to the reference, parameter for parameter, with increasing versions, and checkpo
 from __future__ import annotations
 
 import copy
+import dataclasses
 import json
 import os
 import signal
@@ -27,13 +28,14 @@ torch = pytest.importorskip("torch")
 from formic_agent.checkpoint import CheckpointError, read_checkpoint  # noqa: E402
 from formic_agent.learned import LearnedPolicy  # noqa: E402
 from formic_agent.network import N_EXTRA_INPUTS  # noqa: E402
-from formic_ros.convert import decode_rollout as rollout_arrays  # noqa: E402
-from formic_ros.learning_host import rollout_message  # noqa: E402
-from formic_ros.trainer_node import apply_weights  # noqa: E402
-from formic_ros.trainer_node import RemoteLearner  # noqa: E402
+from formic_ros.convert import decode_rollout, encode_rollout  # noqa: E402
+from formic_ros.learning_host import apply_weights  # noqa: E402
+from formic_ros.trainer_node import TrainerNode  # noqa: E402
+from formic_topics import EXTRA_INPUT_COUNT  # noqa: E402
 from formic_trainer.actor import Actor  # noqa: E402
 from formic_trainer.config import make_config  # noqa: E402
 from formic_trainer.learner import Learner  # noqa: E402
+from formic_trainer.rollout import Rollout  # noqa: E402
 from formic_trainer.worlds import MetaAgents  # noqa: E402
 
 pytestmark = pytest.mark.filterwarnings("ignore::UserWarning", "ignore:module 'sre_:DeprecationWarning")
@@ -49,24 +51,19 @@ def quiet(_text: str) -> None:
     pass
 
 
-def collect(net, episode: int) -> dict[str, np.ndarray]:
+def collect(net, episode: int) -> Rollout:
     """One chunk (a whole episode) from the training worlds and the actor, as ``formic train``
-    collects it: the rollout with the behaviour policy's outputs."""
+    collects it."""
     envs = MetaAgents(CFG)
     envs.reset(episode)
     actor = Actor(CFG, net, np.arange(envs.n_agents))
     actor.start_episode(episode)
     frame = envs.observe()
     for _ in range(STEPS):
-        rewards, _ = envs.step(actor.act(frame))
-        actor.reward(rewards)
+        envs.step(actor.act(frame))
         frame = envs.observe()
-    return actor.rollout(frame.obs, frame.extra)
-
-
-def message(rollout: dict[str, np.ndarray], episode: int):
-    """What a learning host sends (:func:`formic_ros.learning_host.rollout_message`)."""
-    return rollout_message(rollout, weights_version=0, host="test-host", episode=episode, food=0.0)
+        actor.reward(frame.rewards)
+    return actor.rollout(frame, done=True, food=1.5)
 
 
 def snapshot(net) -> dict[str, torch.Tensor]:
@@ -96,32 +93,44 @@ def experience(tmp_path_factory):
     return {"tmp": tmp, "chunks": chunks, "versions": versions}
 
 
-def test_rollout_message_round_trip(experience):
+def test_rollout_message_carries_the_rollout_field_for_field(experience):
     rollout = experience["chunks"][0]
-    msg = message(rollout, 0)
+    msg = encode_rollout(rollout)
     assert (msg.n_steps, msg.n_agents, msg.channels, msg.size) == (STEPS, 4, 8, 11)
-    got = rollout_arrays(msg)
-    assert set(got) == {"agent_ids", "obs", "actions", "rewards", "train_mask", "loss_mask", "value_mask",
-                        "sample_mask", "extra"}
-    for key in got:
-        assert np.array_equal(got[key], rollout[key]), key
-    assert got["extra"].shape[-1] == N_EXTRA_INPUTS  # convert.EXTRA_INPUT_COUNT, restated without torch
+    got = decode_rollout(msg)
+    for field in dataclasses.fields(Rollout):
+        want, have = getattr(rollout, field.name), getattr(got, field.name)
+        assert type(have) is type(want), field.name
+        if isinstance(want, np.ndarray):
+            assert have.dtype == want.dtype and np.array_equal(have, want), field.name
+        else:
+            assert have == want, field.name
+    assert EXTRA_INPUT_COUNT == N_EXTRA_INPUTS  # formic_topics restates it without torch
     msg.rewards = msg.rewards[:-1]
     with pytest.raises(ValueError, match="Rollout.rewards"):
-        rollout_arrays(msg)
+        decode_rollout(msg)
 
 
-def test_learner_recomputes_the_behaviour_outputs_and_drops_stale_rollouts(experience, tmp_path):
-    """In process: the remote learner's update equals the reference; a rollout from weights it
-    no longer keeps is dropped."""
-    first, second = (rollout_arrays(message(rollout, episode)) for episode, rollout in enumerate(experience["chunks"]))
-    learner = RemoteLearner(CFG, tmp_path / "run", resume=False, max_lag=0, log=quiet)
-    assert learner.learn(first, weights_version=0, host="h", episode=0) is not None
-    assert learner.version == 1
-    assert_same_weights(snapshot(learner.learner.net), experience["versions"][1])
-    assert learner.learn(second, weights_version=0, host="h", episode=1) is None
-    assert learner.dropped == 1 and learner.version == 1
-    learner.close()
+def test_trainer_node_learns_as_the_learner_and_drops_stale_or_malformed_rollouts(experience, tmp_path):
+    """In process: the node's update equals the reference and ends the rollout's episode; a
+    rollout of weights it may no longer learn from, and one that does not decode, are dropped."""
+    import rclpy
+
+    first, second = (encode_rollout(rollout) for rollout in experience["chunks"])
+    rclpy.init(domain_id=DOMAIN_ID)
+    try:
+        node = TrainerNode(Learner(CFG, tmp_path / "run", resume=False, log=quiet), max_lag=0)
+        node.on_rollout(first)
+        assert (node.learner.version, node.learner.episode) == (1, 1)
+        assert_same_weights(snapshot(node.learner.net), experience["versions"][1])
+        node.on_rollout(second)  # acted with version 0, the node is at 1
+        second.rewards = second.rewards[:-1]
+        node.on_rollout(second)
+        assert (node.received, node.updates, node.dropped, node.learner.version) == (3, 1, 2, 1)
+        node.learner.close()
+        node.destroy_node()
+    finally:
+        rclpy.shutdown()
 
 
 def test_trainer_node_broadcasts_the_in_process_update(experience, monkeypatch):
@@ -162,7 +171,7 @@ def test_trainer_node_broadcasts_the_in_process_update(experience, monkeypatch):
 
         wait_for(lambda: 0 in received and rollouts.get_subscription_count() > 0, 60)
         for version, rollout in enumerate(experience["chunks"], start=1):
-            rollouts.publish(message(rollout, version - 1))
+            rollouts.publish(encode_rollout(rollout))
             wait_for(lambda v=version: v in received, 30)
         out, err = node_proc.communicate(timeout=30)
     finally:

@@ -72,8 +72,11 @@ def _parse_external(text: str | None) -> tuple[int, ...]:
         raise click.BadParameter(str(exc), param_hint="--external") from exc
 
 
-def _sigterm_as_interrupt() -> None:
-    signal.signal(signal.SIGTERM, signal.default_int_handler)  # which raises KeyboardInterrupt
+def _stop_signals_as_interrupt() -> None:
+    """SIGTERM and SIGHUP stop a launch as Ctrl-C does (KeyboardInterrupt): every child is
+    stopped and the recording closed (by default SIGHUP would end the launcher at once)."""
+    for signum in (signal.SIGTERM, signal.SIGHUP):
+        signal.signal(signum, signal.default_int_handler)
 
 
 @click.command()
@@ -93,7 +96,7 @@ def run(scenario_file, external, live_view, view_port, as_json, **fields) -> Non
     """The main job: world, agent hosts (or the planner) and recorder as separate ROS processes."""
     from formic_ros.launcher import RunOptions, launch
 
-    _sigterm_as_interrupt()
+    _stop_signals_as_interrupt()
     scenario = scenario_from(scenario_file, fields)  # takes the world options out: RunOptions' fields remain
     options = RunOptions(scenario=scenario, external=_parse_external(external), **fields,
                          progress=not as_json and sys.stderr.isatty(),
@@ -231,7 +234,7 @@ def train_ros(preset, train_config, overrides, as_json, **options) -> None:
     separate ROS processes; same settings and seeds give `formic train`'s learning curve."""
     from formic_ros.launcher import TrainRunOptions, launch_training
 
-    _sigterm_as_interrupt()
+    _stop_signals_as_interrupt()
     with click_errors(RuntimeError, ValueError, TypeError, FileNotFoundError,
                       interrupted="interrupted: every process stopped (the trainer saved its checkpoint)"):
         cfg = training_config(preset, train_config, overrides)

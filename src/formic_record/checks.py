@@ -11,18 +11,9 @@ from __future__ import annotations
 import numpy as np
 
 from formic_record.compact import decode_compact
+from formic_topics import ENCODING_COMPACT, ENCODING_FLOAT32
 from formic_world import World
 from formic_world.geometry import CACHE, RESOURCE
-
-ENCODING_FLOAT32, ENCODING_COMPACT = 0, 1
-
-AGENT_OBSERVATION = "formic_interfaces/msg/AgentObservation"
-OBSERVATION_BATCH = "formic_interfaces/msg/ObservationBatch"
-WORLD_STATE = "formic_interfaces/msg/WorldState"
-CLOCK = "rosgraph_msgs/msg/Clock"
-FLOAT64 = "std_msgs/msg/Float64"
-OCCUPANCY_GRID = "nav_msgs/msg/OccupancyGrid"
-MARKER_ARRAY = "visualization_msgs/msg/MarkerArray"
 
 
 def stamp_ns(stamp) -> int:

@@ -9,6 +9,7 @@ message the world published field by field. Messages are decoded with the record
 
 from __future__ import annotations
 
+import json
 import os
 import time
 from collections import deque
@@ -18,15 +19,14 @@ from pathlib import Path
 
 import numpy as np
 
+from formic_topics import (ACTION_BATCH_TYPE, APPLIED_ACTIONS, NO_ACTION_WIRE, SCENARIO_TYPE, STRING_TYPE, SUMMARY,
+                           WORLD_STATE_TYPE)
 from formic_world import NO_ACTION, Scenario, World
 
-from .checks import WORLD_STATE
 from .reading import Recording
 
-NO_ACTION_WIRE = 255  # ActionBatch value for "no action arrived" (formic_ros.qos.NO_ACTION_WIRE)
-SCENARIO_TYPE = "formic_interfaces/msg/ScenarioDescription"
-ACTIONS_TYPE = "formic_interfaces/msg/ActionBatch"
-APPLIED_SUFFIX = "/applied_actions"
+APPLIED_SUFFIX = f"/{APPLIED_ACTIONS}"
+SUMMARY_SUFFIX = f"/{SUMMARY}"  # the world's, once it has played an episode to the end
 
 
 @dataclass
@@ -50,14 +50,26 @@ class RecordedEpisode:
     policies: str = ""
     actions: dict[int, np.ndarray] = field(default_factory=dict)  # step -> rows (agent ids, actions), -1 = none
     states: dict[int, RecordedState] = field(default_factory=dict)  # world.t -> state
+    finished: bool = False  # the world's summary of this episode is recorded: the world played it to the end
+
+
+def _summary_seed(text: str) -> int | None:
+    """The seed a world summary (JSON) names; None when it names none."""
+    try:
+        return int(json.loads(text)["seed"])
+    except (ValueError, KeyError, TypeError):
+        return None
 
 
 def read_episodes(recording: Recording) -> list[RecordedEpisode]:
-    """The episodes in a recording, in order (a new scenario description starts one)."""
+    """The episodes in a recording, in order (a new scenario description starts one). A world
+    summary counts for the episode whose seed it names (a recorder joining mid-run gets the
+    latched summary of the episode before too)."""
     store = recording.typestore()
     wanted = [t for t, info in recording.topics.items()
-              if info.msgtype in (SCENARIO_TYPE, WORLD_STATE)
-              or (info.msgtype == ACTIONS_TYPE and t.endswith(APPLIED_SUFFIX))]
+              if info.msgtype in (SCENARIO_TYPE, WORLD_STATE_TYPE)
+              or (info.msgtype == ACTION_BATCH_TYPE and t.endswith(APPLIED_SUFFIX))
+              or (info.msgtype == STRING_TYPE and t.endswith(SUMMARY_SUFFIX))]
     episodes: list[RecordedEpisode] = []
     for message in recording.messages(wanted):
         msg = store.deserialize_cdr(message.data, message.msgtype)
@@ -70,8 +82,10 @@ def read_episodes(recording: Recording) -> list[RecordedEpisode]:
         if not episodes:
             episodes.append(RecordedEpisode())
         episode = episodes[-1]
-        if message.msgtype == WORLD_STATE:
+        if message.msgtype == WORLD_STATE_TYPE:
             episode.states[int(msg.step)] = RecordedState.from_message(msg)
+        elif message.msgtype == STRING_TYPE:
+            episode.finished |= episode.scenario is not None and _summary_seed(msg.data) == episode.scenario.seed
         else:
             wire = np.asarray(msg.actions, dtype=np.int64)
             episode.actions[int(msg.step)] = np.stack([np.asarray(msg.agent_ids, dtype=np.int64),

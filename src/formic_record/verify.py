@@ -4,8 +4,16 @@ re-simulated from the recorded scenario and applied actions and compared field b
 score, map and agent markers. The first mismatch of each topic is reported, with a count.
 
 Messages without a step (clock, score, map, markers) are placed by what the world does: a
-``/clock`` goes out with each state (the k-th clock of an episode belongs to its k-th state),
-map and markers carry the sim time of their step, and a score goes out with each map.
+``/clock``, a map and the markers carry the sim time of their step, and a clock goes out with
+each state (so clocks go forward): placed by value, not by counting, a lost message shifts no
+other. A score goes out with each map: the k-th score is the k-th map's when their numbers agree.
+
+A recording that stops before its episode's end (the run or the recorder was interrupted)
+verifies up to its last complete step: the re-simulation runs while applied actions are
+recorded, and what the recorder holds of later steps (each topic has its own reader, so a
+recorder stopped mid-step holds some of the next steps' messages and not others) is counted,
+not checked. Applied actions missing between recorded ones, or at the end of an episode whose
+summary the world published, fail a recording the writer closed.
 """
 
 from __future__ import annotations
@@ -13,15 +21,21 @@ from __future__ import annotations
 import os
 from collections import Counter, defaultdict
 from dataclasses import asdict, dataclass, field
+from itertools import pairwise
+
+from formic_topics import (AGENT_OBSERVATION_TYPE, CLOCK_TYPE, FLOAT64_TYPE, MARKER_ARRAY_TYPE, OBSERVATION_BATCH_TYPE,
+                           OCCUPANCY_GRID_TYPE, SCENARIO_TYPE, SCORE, WORLD_STATE_TYPE)
+from formic_world import World
 
 from . import checks
 from .reading import Recording
-from .replay import SCENARIO_TYPE, read_episodes, resimulate
+from .replay import RecordedEpisode, read_episodes, resimulate
 
-STEPPED = {checks.AGENT_OBSERVATION: checks.check_agent_observation,
-           checks.OBSERVATION_BATCH: checks.check_observation_batch, checks.WORLD_STATE: checks.check_state}
-STAMPED = {checks.OCCUPANCY_GRID: checks.check_map, checks.MARKER_ARRAY: checks.check_markers}
-SCORE_SUFFIX = "/score"
+STEPPED = {AGENT_OBSERVATION_TYPE: checks.check_agent_observation,
+           OBSERVATION_BATCH_TYPE: checks.check_observation_batch, WORLD_STATE_TYPE: checks.check_state}
+STAMPED = {OCCUPANCY_GRID_TYPE: checks.check_map, MARKER_ARRAY_TYPE: checks.check_markers}
+SCORE_SUFFIX = f"/{SCORE}"
+DEFAULT_DT = 0.1  # `formic world --dt`'s default, for a recording with too few clocks to tell
 
 
 @dataclass
@@ -35,10 +49,15 @@ class VerifyReport:
     messages_checked: int = 0
     topics_checked: int = 0
     mismatches: dict[str, dict] = field(default_factory=dict)  # topic -> first, count
+    interrupted_at: int | None = None  # the last complete step of a recording cut before its episode's end
 
     def mismatch(self, topic: str, step: int | None, detail: str) -> None:
         entry = self.mismatches.setdefault(topic, {"step": step, "first": detail, "count": 0})
         entry["count"] += 1
+        self.ok = False
+
+    def fail(self, problem: str) -> None:
+        self.problems.append(problem)
         self.ok = False
 
     def summary(self) -> str:
@@ -55,22 +74,31 @@ class VerifyReport:
         return asdict(self)
 
 
-def _infer_dt(clocks: dict, state_steps: dict, run_info: dict) -> float | None:
+def _infer_dt(clocks: dict, run_info: dict) -> float:
+    """Seconds a step: recorded, else the most common difference of consecutive clocks."""
     if "dt" in run_info:
         return float(run_info["dt"])
-    ratios = Counter(round(checks.stamp_ns(msg.clock) / step) for ep, items in clocks.items()
-                     for (_, msg), step in zip(items, state_steps[ep]) if step > 0)
-    return ratios.most_common(1)[0][0] / 1e9 if ratios else None
+    steps = Counter(later - earlier for items in clocks.values()
+                    for earlier, later in pairwise(checks.stamp_ns(msg.clock) for _, msg in items) if later > earlier)
+    return steps.most_common(1)[0][0] / 1e9 if steps else DEFAULT_DT
+
+
+def _step_of(stamp, dt: float) -> int | None:
+    """The step whose sim time ``stamp`` is, or None when it is no step's."""
+    if stamp is None:
+        return None
+    step = round(checks.stamp_ns(stamp) / (dt * 1e9))
+    return step if checks.stamp_ns(stamp) == checks.sim_time_ns(step, dt) else None
 
 
 def _collect(recording: Recording, report: VerifyReport):
     """Every checkable message, decoded, as pending[episode][step] -> [(topic, check, msg)]."""
     store = recording.typestore()
-    kinds = set(STEPPED) | set(STAMPED) | {checks.CLOCK, SCENARIO_TYPE}
+    kinds = set(STEPPED) | set(STAMPED) | {CLOCK_TYPE, SCENARIO_TYPE}
     wanted = [t for t, i in recording.topics.items()
-              if i.msgtype in kinds or (i.msgtype == checks.FLOAT64 and t.endswith(SCORE_SUFFIX))]
+              if i.msgtype in kinds or (i.msgtype == FLOAT64_TYPE and t.endswith(SCORE_SUFFIX))]
     pending: dict[int, dict[int, list]] = defaultdict(lambda: defaultdict(list))
-    state_steps, clocks, stamped, scores = (defaultdict(list) for _ in range(4))
+    clocks, stamped, scores = (defaultdict(list) for _ in range(3))
     episode, described = 0, False
     for message in recording.messages(wanted):
         try:
@@ -83,34 +111,36 @@ def _collect(recording: Recording, report: VerifyReport):
             episode, described = (episode + 1 if described else episode), True
         elif kind in STEPPED:
             pending[episode][int(msg.step)].append((topic, STEPPED[kind], msg))
-            if kind == checks.WORLD_STATE:
-                state_steps[episode].append(int(msg.step))
-        elif kind == checks.CLOCK:
+        elif kind == CLOCK_TYPE:
             clocks[episode].append((topic, msg))
         elif kind in STAMPED:
-            stamp = msg.header.stamp if kind == checks.OCCUPANCY_GRID else (
+            stamp = msg.header.stamp if kind == OCCUPANCY_GRID_TYPE else (
                 msg.markers[0].header.stamp if len(msg.markers) else None)
             stamped[episode].append((topic, STAMPED[kind], msg, stamp))
         else:
             scores[episode].append((topic, msg))
-    dt = _infer_dt(clocks, state_steps, recording.run_info)
+    dt = _infer_dt(clocks, recording.run_info)
     for ep, items in clocks.items():
-        for k, (topic, msg) in enumerate(items):
-            if k >= len(state_steps[ep]):
-                report.mismatch(topic, None, f"clock message {k} has no recorded state to belong to")
-            else:
-                pending[ep][state_steps[ep][k]].append((topic, lambda m, w: checks.check_clock(m, w.t, dt), msg))
+        last = -1
+        for topic, msg in items:
+            step = _step_of(msg.clock, dt)
+            if step is None or step <= last:
+                report.mismatch(topic, step, f"clock: {checks.stamp_ns(msg.clock)} ns is not the sim time of a "
+                                f"step (dt {dt})" if step is None else f"clock: step {step} after step {last}")
+                continue
+            last = step
+            pending[ep][step].append((topic, lambda m, w: checks.check_clock(m, w.t, dt), msg))
     for ep, items in stamped.items():
         steps = []
         for topic, check, msg, stamp in items:
-            step = None if stamp is None or not dt else round(checks.stamp_ns(stamp) / (dt * 1e9))
-            if step is None or checks.stamp_ns(stamp) != checks.sim_time_ns(step, dt):
+            step = _step_of(stamp, dt)
+            if step is None:
                 report.mismatch(topic, step, "header.stamp is not the sim time of a step")
                 continue
             pending[ep][step].append((topic, check, msg))
             if check is checks.check_map:
                 steps.append(step)
-        if scores[ep] and len(scores[ep]) != len(steps):
+        if scores[ep] and len(scores[ep]) != len(steps):  # a map lost (latched, depth 1) or cut off
             report.problems.append(f"{len(scores[ep])} score messages but {len(steps)} maps: scores not checked")
             continue
         for (topic, msg), step in zip(scores[ep], steps):
@@ -118,22 +148,46 @@ def _collect(recording: Recording, report: VerifyReport):
     return pending
 
 
+def _check_end(report: VerifyReport, where: str, episode: RecordedEpisode, world: World, todo: dict,
+               cut_short: bool) -> None:
+    """What the end of an episode's re-simulation at ``world.t`` makes of the messages left in
+    ``todo`` (those of later steps): past the episode's end they fail; after a gap in the applied
+    actions, or when the world finished the episode, they fail unless the file was cut short
+    (its lost chunks explain them); otherwise the recording was interrupted there."""
+    steps = f"step {min(todo)}" if len(todo) == 1 else f"steps {min(todo, default=0)}-{max(todo, default=0)}"
+    left = f"{sum(map(len, todo.values()))} recorded message(s) of {steps}" if todo else ""
+    if world.done:
+        if todo:
+            report.fail(f"{where}{left} lie past the episode's end (step {world.t})")
+        return
+    later = sorted(t for t in episode.actions if t > world.t)
+    lost = report.problems.append if cut_short else report.fail
+    if later:
+        lost(f"{where}no applied actions for step {world.t} but for {len(later)} later step(s) from step "
+             f"{later[0]}: {left or 'nothing'} after it cannot be re-simulated")
+    elif episode.finished:
+        lost(f"{where}applied actions end at step {world.t} of {world.config.episode_steps}, but the world "
+             "finished the episode (its summary is recorded)")
+    else:
+        report.interrupted_at = world.t
+        report.problems.append(f"{where}recording ends at step {world.t} of {world.config.episode_steps} "
+                               "(interrupted)" + (f"; {left} after it not checked" if todo else ""))
+
+
 def verify_recording(path: str | os.PathLike) -> VerifyReport:
     """Check every CRC (a corrupted file raises :class:`RecordingError`), then re-simulate
-    every episode and compare every recorded message the world published. Messages that
-    cannot be reached (their actions are missing) fail a complete recording, and are only
-    noted for one cut short (its tail is lost by definition)."""
+    every episode and compare every recorded message the world published. A recording cut
+    before its episode's end verifies up to its last complete step (see the module)."""
     recording = Recording(path)
     recording.check()
     episodes = read_episodes(recording)
     report = VerifyReport(True, len(episodes), 0, 0, recording.describe())
     if not episodes:
-        report.ok = False
-        report.problems.append("no scenario, state or applied actions in the recording")
+        report.fail("no scenario, state or applied actions in the recording")
     pending = _collect(recording, report)
     topics = set()
     for number, episode in enumerate(episodes):
-        label = f"episode {number}" if len(episodes) > 1 else "episode"
+        where = f"episode {number}: " if len(episodes) > 1 else ""
         todo = pending.get(number, {})
         try:
             for world in resimulate(episode):
@@ -146,17 +200,10 @@ def verify_recording(path: str | os.PathLike) -> VerifyReport:
                     if difference:
                         report.mismatch(topic, world.t, difference)
         except ValueError as exc:
-            report.ok = False
-            report.problems.append(f"{label}: {exc}")
+            report.fail(f"{where}{exc}")
             continue
-        if todo:
-            count = sum(len(v) for v in todo.values())
-            what = (f"{label}: {count} recorded messages of steps {min(todo)}-{max(todo)} cannot be "
-                    f"re-simulated (no applied actions for step {world.t})")
-            report.problems.append(what)
-            report.ok = report.ok and recording.cut_short
+        _check_end(report, where, episode, world, todo, recording.cut_short)
     report.topics_checked = len(topics)
     if report.ok and report.states_checked == 0:
-        report.ok = False
-        report.problems.append("no recorded state could be checked")
+        report.fail("no recorded state could be checked")
     return report

@@ -34,6 +34,7 @@ from formic_agent.policy import AgentBatch, CentralPolicy
 from formic_runtime.registry import world_overrides
 from formic_runtime.team import Team, format_ids
 from formic_runtime.threads import configure_threads
+import formic_topics as topics
 from formic_world import Scenario
 
 from .lockstep import WorldLost
@@ -67,7 +68,7 @@ class AgentHost:
     """The nodes and policies of one host; add :attr:`nodes` to an executor and spin."""
 
     def __init__(self, agent_ids: list[int], spec: str, model: str | None = None, greedy: bool = False,
-                 transport: str = "per-agent", namespace: str = qos.DEFAULT_NAMESPACE,
+                 transport: str = "per-agent", namespace: str = topics.DEFAULT_NAMESPACE,
                  name: str | None = None, torch_threads: int = 1):
         if transport not in TRANSPORTS:
             raise ValueError(f"unknown transport {transport!r}; choose from {', '.join(TRANSPORTS)}")
@@ -82,18 +83,18 @@ class AgentHost:
         self.control = rclpy.create_node(name or f"agent_host_{os.getpid()}", namespace=namespace)
         self.log = self.control.get_logger()
         self.nodes = [self.control]
-        self.control.create_subscription(ScenarioDescription, qos.SCENARIO, self._on_scenario, qos.LATCHED)
+        self.control.create_subscription(ScenarioDescription, topics.SCENARIO, self._on_scenario, qos.LATCHED)
         if transport == "batched":
-            self.control.create_subscription(ObservationBatch, qos.OBSERVATIONS, self._on_batch, qos.STREAM)
-            self.actions_pub = self.control.create_publisher(ActionBatch, f"~/{qos.ACTIONS}", qos.STREAM_WRITER)
+            self.control.create_subscription(ObservationBatch, topics.OBSERVATIONS, self._on_batch, qos.STREAM)
+            self.actions_pub = self.control.create_publisher(ActionBatch, f"~/{topics.ACTIONS}", qos.STREAM_WRITER)
             batched, publishers = self.actions_pub.topic_name, [self.actions_pub]
         else:
             self.action_pubs = {}
             for a in self.ids.tolist():
-                node = lean_node(qos.agent_node_name(a), namespace)
-                node.create_subscription(AgentObservation, f"~/{qos.AGENT_OBSERVATION}",
+                node = lean_node(topics.agent_node_name(a), namespace)
+                node.create_subscription(AgentObservation, f"~/{topics.AGENT_OBSERVATION}",
                                          lambda msg, a=a: self._on_agent_observation(a, msg), qos.LATEST)
-                self.action_pubs[a] = node.create_publisher(AgentAction, f"~/{qos.AGENT_ACTION}", qos.STREAM_WRITER)
+                self.action_pubs[a] = node.create_publisher(AgentAction, f"~/{topics.AGENT_ACTION}", qos.STREAM_WRITER)
                 self.nodes.append(node)
             self.control.create_timer(PARTIAL_WAIT_S / 4, self._answer_late_step)
             batched, publishers = None, list(self.action_pubs.values())
@@ -235,7 +236,7 @@ class WorldWatch:
         if horizon < 0 or now < self.next_check:
             return False
         self.next_check = now + self.PERIOD_S
-        if self.node.count_publishers(qos.SCENARIO):
+        if self.node.count_publishers(topics.SCENARIO):
             return False
         if next_step < horizon:
             raise WorldLost(f"the world left at step {next_step} of {horizon}, before the episode ended")

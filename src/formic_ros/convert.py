@@ -1,8 +1,8 @@
 """One codec: every formic_interfaces message the nodes exchange, as encode/decode pairs.
 
 Observations are :class:`formic_agent.policy.AgentBatch` rows (batched or one message per
-agent), actions int64 arrays (NO_ACTION -1 travels as 255), rollouts the arrays
-:meth:`formic_trainer.actor.Actor.rollout` returns, weights a :class:`WeightsPayload`.
+agent), actions int64 arrays (NO_ACTION -1 travels as 255), rollouts
+:class:`formic_trainer.rollout.Rollout` (field for field), weights a :class:`WeightsPayload`.
 Array fields and the compact observation encoding are in :mod:`formic_ros.wire`; viewer
 messages (one way) in :mod:`formic_ros.viewer_msgs`. :func:`checked_subscription` is how a
 node takes messages from others: bytes that do not decode are reported, not dropped unseen.
@@ -16,14 +16,16 @@ from typing import NamedTuple
 
 import numpy as np
 from rclpy.serialization import deserialize_message
-from formic_interfaces.msg import (ActionBatch, AgentObservation, ObservationBatch, Rollout,
-                                   ScenarioDescription, Weights, WorldState)
+from formic_interfaces.msg import (ActionBatch, AgentObservation, ObservationBatch, ScenarioDescription, Weights,
+                                   WorldState)
+from formic_interfaces.msg import Rollout as RolloutMsg
 
 from formic_agent.policy import AgentBatch
+from formic_topics import EXTRA_INPUT_COUNT, NO_ACTION_WIRE, SCENARIO_FORMAT_VERSION
+from formic_trainer.rollout import Rollout
 from formic_world import Scenario, World
 from formic_world.geometry import N_ACTIONS
 
-from .qos import NO_ACTION_WIRE
 from .wire import decode_observations, f32, i32, observation_fields, read, u8, u32
 
 
@@ -41,11 +43,6 @@ def checked_subscription(node, msg_type, topic: str, profile, on_message, on_mal
         on_message(msg)
 
     return node.create_subscription(msg_type, topic, take, profile, raw=True)
-
-
-SCENARIO_FORMAT_VERSION = 1
-ACTION_COUNT = N_ACTIONS  # the learning host reads it
-EXTRA_INPUT_COUNT = 10  # formic_agent.network.N_EXTRA_INPUTS (importing it would bring torch)
 
 
 # ------------------------------------------------------------------------ observations
@@ -197,23 +194,28 @@ def decode_scenario(msg: ScenarioDescription) -> Scenario:
 
 
 # ---------------------------------------------------------------------------- learning
-def encode_rollout(arrays: dict[str, np.ndarray], weights_version: int = 0, host: str = "", episode: int = 0,
-                   food: float = 0.0) -> Rollout:
-    """A chunk's arrays (``Actor.rollout``'s: T+1 observation frames, T of the rest; other keys ignored)."""
-    frames, agents, channels, size, _ = arrays["obs"].shape
-    return Rollout(
-        weights_version=weights_version, host=host, episode=episode, n_agents=agents, n_steps=frames - 1,
-        channels=channels, size=size, agent_ids=u32(arrays["agent_ids"]), observations=f32(arrays["obs"]),
-        actions=u8(arrays["actions"]), rewards=f32(arrays["rewards"]), valid_masks=u8(arrays["train_mask"]),
-        loss_mask=u8(arrays["loss_mask"]), value_mask=u8(arrays["value_mask"]),
-        sample_masks=u8(arrays.get("sample_mask", [])), extra_inputs=f32(arrays.get("extra", [])),
-        food=float(food),
+def encode_rollout(rollout: Rollout) -> RolloutMsg:
+    """A :class:`Rollout` as the message, field for field (masks as 0/1 bytes; no imitation: empty)."""
+    frames, agents, channels, size, _ = rollout.observations.shape
+    imitation = rollout.expert_actions is not None
+    return RolloutMsg(
+        n_agents=agents, n_steps=frames - 1, channels=channels, size=size,
+        weights_version=rollout.weights_version, episode=rollout.episode, done=rollout.done, food=rollout.food,
+        agent_ids=u32(rollout.agent_ids), observations=f32(rollout.observations),
+        extra_inputs=f32(rollout.extra_inputs), actions=u8(rollout.actions), logprobs=f32(rollout.logprobs),
+        values=f32(rollout.values), next_value=f32(rollout.next_value), h0=f32(rollout.h0), c0=f32(rollout.c0),
+        rewards=f32(rollout.rewards), train_mask=u8(rollout.train_mask), sample_mask=u8(rollout.sample_mask),
+        loss_mask=u8(rollout.loss_mask), value_mask=u8(rollout.value_mask),
+        expert_actions=u8(rollout.expert_actions) if imitation else b"",
+        imitation_mask=u8(rollout.imitation_mask) if imitation else b"",
     )
 
 
-def decode_rollout(msg: Rollout) -> dict[str, np.ndarray]:
-    """Inverse of :func:`encode_rollout`: the arrays (shapes checked)."""
+def decode_rollout(msg: RolloutMsg) -> Rollout:
+    """Inverse of :func:`encode_rollout`, every array's size checked (ValueError)."""
     steps, agents, channels, size = int(msg.n_steps), int(msg.n_agents), int(msg.channels), int(msg.size)
+    if steps < 1 or agents < 1:
+        raise ValueError(f"empty rollout ({steps} steps, {agents} agents)")
 
     def field(name: str, dtype, *shape: int) -> np.ndarray:
         values = read(getattr(msg, name), dtype)
@@ -221,23 +223,27 @@ def decode_rollout(msg: Rollout) -> dict[str, np.ndarray]:
             raise ValueError(f"Rollout.{name} has {values.size} values, expected {int(np.prod(shape))} {shape}")
         return values.reshape(shape)
 
-    if steps < 1 or agents < 1:
-        raise ValueError(f"empty rollout ({steps} steps, {agents} agents)")
-    optional = {}
-    if len(msg.sample_masks):
-        optional["sample_mask"] = field("sample_masks", np.uint8, steps, agents, ACTION_COUNT).astype(bool)
-    if len(msg.extra_inputs):
-        optional["extra"] = field("extra_inputs", np.float32, steps + 1, agents, EXTRA_INPUT_COUNT)
-    return {
-        "agent_ids": field("agent_ids", np.uint32, agents).astype(np.int64),
-        "obs": field("observations", np.float32, steps + 1, agents, channels, size, size),
-        "actions": field("actions", np.uint8, steps, agents).astype(np.int64),
-        "rewards": field("rewards", np.float32, steps, agents),
-        "train_mask": field("valid_masks", np.uint8, steps, agents, ACTION_COUNT).astype(bool),
-        "loss_mask": field("loss_mask", np.uint8, steps, agents).astype(np.float32),
-        "value_mask": field("value_mask", np.uint8, steps, agents).astype(np.float32),
-        **optional,
-    }
+    rnn = max(len(msg.h0) // agents, 1)  # an empty LSTM state is malformed too
+    imitation = len(msg.expert_actions) > 0
+    return Rollout(
+        weights_version=int(msg.weights_version), episode=int(msg.episode), done=bool(msg.done), food=float(msg.food),
+        agent_ids=field("agent_ids", np.uint32, agents).astype(np.int64),
+        observations=field("observations", np.float32, steps + 1, agents, channels, size, size),
+        extra_inputs=field("extra_inputs", np.float32, steps + 1, agents, EXTRA_INPUT_COUNT),
+        actions=field("actions", np.uint8, steps, agents).astype(np.int64),
+        logprobs=field("logprobs", np.float32, steps, agents),
+        values=field("values", np.float32, steps, agents),
+        next_value=field("next_value", np.float32, agents),
+        h0=field("h0", np.float32, 1, agents, rnn),
+        c0=field("c0", np.float32, 1, agents, rnn),
+        rewards=field("rewards", np.float32, steps, agents),
+        train_mask=field("train_mask", np.uint8, steps, agents, N_ACTIONS).astype(bool),
+        sample_mask=field("sample_mask", np.uint8, steps, agents, N_ACTIONS).astype(bool),
+        loss_mask=field("loss_mask", np.uint8, steps, agents).astype(bool),
+        value_mask=field("value_mask", np.uint8, steps, agents).astype(bool),
+        expert_actions=field("expert_actions", np.uint8, steps, agents).astype(np.int64) if imitation else None,
+        imitation_mask=field("imitation_mask", np.uint8, steps, agents).astype(bool) if imitation else None,
+    )
 
 
 class WeightsPayload(NamedTuple):

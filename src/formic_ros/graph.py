@@ -19,6 +19,8 @@ from typing import NamedTuple
 from rclpy.node import Node
 from std_msgs.msg import String
 
+import formic_topics as topics
+
 from . import qos
 
 RECORDER_NODE = "recorder"  # the node name of ``formic record`` (and the launcher's recorder)
@@ -59,7 +61,7 @@ class RecorderReports:
     def __init__(self, node: Node):
         self.node = node
         self.reports: dict[str, Report] = {}  # recorder id -> its latest report, oldest first
-        self.subscription = node.create_subscription(String, qos.RECORDER_MATCHES, self._on_report,
+        self.subscription = node.create_subscription(String, topics.RECORDER_MATCHES, self._on_report,
                                                      qos.reliable(100, latched=True))
 
     def _on_report(self, msg: String) -> None:
@@ -68,7 +70,7 @@ class RecorderReports:
             recorder = str(report["recorder"])
             matched = {str(t): int(n) for t, n in report["publishers"].items()}
         except (ValueError, KeyError, TypeError, AttributeError):
-            self.node.get_logger().warning(f"malformed report on {qos.RECORDER_MATCHES}: {msg.data[:80]!r}",
+            self.node.get_logger().warning(f"malformed report on {topics.RECORDER_MATCHES}: {msg.data[:80]!r}",
                                            throttle_duration_sec=10.0)
             return
         self.reports.pop(recorder, None)  # re-inserted last: the dict runs from oldest to newest

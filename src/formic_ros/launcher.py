@@ -24,9 +24,9 @@ from typing import TYPE_CHECKING
 
 from formic_runtime.registry import DEFAULT_MODEL, apply_world_overrides, model_path
 from formic_runtime.team import Team
+import formic_topics as topics
 from formic_world import Scenario
 
-from . import qos
 from .env import check_domain_id, ros_environment, warn_if_exposed
 from .node_process import node_spec
 from .processes import RECORDER_GRACE_S, Children, JsonLines, watch
@@ -50,7 +50,7 @@ class RunOptions:
     transport: str = "per-agent"
     external: tuple[int, ...] = ()
     record: str | None = None
-    namespace: str = qos.DEFAULT_NAMESPACE
+    namespace: str = topics.DEFAULT_NAMESPACE
     domain_id: int | None = None
     deadline_ms: float = 1000.0
     startup_timeout_s: float = 60.0
@@ -67,7 +67,7 @@ def world_spec(opts: RunOptions, scenario_file: Path, label: str, drivers: list[
         namespace=opts.namespace, deadline_s=opts.deadline_ms / 1e3, startup_timeout_s=opts.startup_timeout_s,
         rate_hz=opts.rate_hz or None, viewer_every=opts.viewer_every, policy_label=label,
         recorders=1 if opts.record else 0, progress=opts.progress, view_port=opts.view_port,
-        external=tuple(opts.external), drivers=tuple(qos.full_name(opts.namespace, name) for name in drivers),
+        external=tuple(opts.external), drivers=tuple(topics.full_name(opts.namespace, name) for name in drivers),
     )
     return node_spec("world", scenario=str(scenario_file), options=asdict(options), domain_id=opts.domain_id)
 
@@ -138,7 +138,7 @@ class TrainRunOptions:
     episodes: int
     fresh: bool = False
     switch: str = "chunk"  # when hosts take new weights: after each rollout (on-policy), or per episode
-    namespace: str = qos.DEFAULT_NAMESPACE
+    namespace: str = topics.DEFAULT_NAMESPACE
     domain_id: int | None = None
     deadline_ms: float = TRAINING_DEADLINE_MS
     startup_timeout_s: float = 120.0
@@ -164,7 +164,7 @@ def training_specs(opts: TrainRunOptions, config_file: Path, start: int) -> dict
     chunks = math.ceil(opts.config.episode_steps / opts.config.rollout_steps)
     world = WorldNodeOptions(namespace=opts.namespace, deadline_s=opts.deadline_ms / 1e3,
                              startup_timeout_s=opts.startup_timeout_s, viewer_every=opts.viewer_every,
-                             external=(), drivers=(qos.full_name(opts.namespace, "agent_host_0"),))
+                             external=(), drivers=(topics.full_name(opts.namespace, "agent_host_0"),))
     return {
         "trainer": node_spec("trainer", **common, run_dir=opts.run_dir, resume=not opts.fresh,
                              max_rollouts=opts.episodes * chunks, max_lag=max(DEFAULT_MAX_LAG, chunks)),

@@ -1,9 +1,10 @@
 """Distributed training's agent host: learning agents over ROS.
 
 :class:`HostActor` is :class:`formic_trainer.actor.Actor` (the very actor ``formic train``
-runs) over this host's agents, on the weights the trainer node broadcasts; its rollouts go
-to the trainer as Rollout messages. :class:`LearningHost` is the batched-transport node
-around it, :func:`serve_learning_agents` runs one.
+runs) over this host's agents, on the weights the trainer node broadcasts, reading the frames
+``formic train``'s worlds build (:func:`formic_trainer.worlds.make_frame`); its rollouts go to
+the trainer as Rollout messages. :class:`LearningHost` is the batched-transport node around it,
+:func:`serve_learning_agents` runs one.
 """
 
 from __future__ import annotations
@@ -15,59 +16,65 @@ from contextlib import suppress
 import numpy as np
 import rclpy
 import torch
-from formic_interfaces.msg import ActionBatch, ObservationBatch, Rollout, ScenarioDescription, Weights
+from formic_interfaces.msg import ActionBatch, ObservationBatch, ScenarioDescription, Weights
+from formic_interfaces.msg import Rollout as RolloutMsg
 
-from formic_agent.network import ActionFeedback, extra_inputs, nest_features
+from formic_agent.checkpoint import CheckpointError, read_checkpoint
+from formic_agent.network import ActionFeedback, NetworkConfig
 from formic_agent.policy import AgentBatch
+import formic_topics as topics
 from formic_trainer.actor import Actor
 from formic_trainer.algorithm import training_network
 from formic_trainer.config import TrainConfig
-from formic_trainer.worlds import Frame, share_rewards
+from formic_trainer.rollout import Rollout
+from formic_trainer.worlds import Frame, make_frame
+from formic_world.geometry import N_ACTIONS
 
 from .ownership import Claim
 from . import convert, qos
 from .wire import read
 from .agent_host import WorldWatch, read_scenario
-from .trainer_node import apply_weights
 
 
-def rollout_message(rollout: dict[str, np.ndarray], weights_version: int, host: str, episode: int, food: float,
-                    extra: bool = True) -> Rollout:
-    """An actor's rollout as the Rollout a host sends; the extra inputs only with ``extra``
-    (networks that read them)."""
-    if not extra:
-        rollout = {key: value for key, value in rollout.items() if key != "extra"}
-    return convert.encode_rollout(rollout, int(weights_version), host, int(episode), float(food))
+def apply_weights(policy, msg: Weights) -> int:
+    """Load a Weights message into a learned policy (or anything with its ``net`` and
+    ``load_state_dict``; ``weights_only`` loading); returns its version."""
+    payload = read_checkpoint(bytes(msg.data))
+    config = NetworkConfig.from_dict(payload["network"])
+    if config != policy.net.config:
+        raise CheckpointError(f"weights for network {config} do not fit the policy's {policy.net.config}")
+    policy.load_state_dict(payload["state_dict"])
+    return int(msg.version)
 
 
 class HostActor:
-    """This host's agents as ``formic train``'s :class:`Actor`, made with the first weights
-    (its streams are seeded per episode). Per episode :meth:`start_episode`; per step :meth:`act`,
-    then :meth:`outcome`, which returns the chunk's Rollout message (tagged with the weights
-    version that acted and the food delivered) once it is complete. ``first_episode``: the
+    """This host's agents as ``formic train``'s :class:`Actor` (its streams are seeded per
+    episode). Per episode :meth:`start_episode`; per step :meth:`frame` (the world's
+    observations as the actor reads them) and :meth:`outcome` (the chunk's Rollout once it is
+    complete), then :meth:`act` on that frame once weights are loaded. ``first_episode``: the
     global number of the first episode (a resumed run's)."""
 
-    def __init__(self, cfg: TrainConfig, agent_ids, host: str = "", first_episode: int = 0):
-        self.cfg, self.host = cfg, host
+    def __init__(self, cfg: TrainConfig, agent_ids, first_episode: int = 0):
+        self.cfg = cfg
         self.ids = np.asarray(sorted(agent_ids), dtype=np.int64)
         self.net = training_network(cfg)
-        self.actor: Actor | None = None
-        self.version = -1  # weights version loaded (-1: none yet)
-        self.chunk_version = -1  # the version that acted in the current chunk
+        self.actor = Actor(cfg, self.net, self.ids, weights_version=-1)  # -1: no weights yet
         self.episode = first_episode - 1  # global episode number
         self.starting = False
         self.food = 0.0
         self.loads = np.zeros(len(self.ids))
         self.feedback = ActionFeedback()
 
+    @property
+    def version(self) -> int:
+        """The weights version loaded (-1: none yet)."""
+        return self.actor.weights_version
+
     def load_state_dict(self, state_dict: dict) -> None:
         self.net.load_state_dict(state_dict)
 
-    def load_weights(self, msg) -> int:
-        self.version = apply_weights(self, msg)
-        if self.actor is None:
-            self.actor = Actor(self.cfg, self.net, self.ids)
-        return self.version
+    def load_weights(self, msg: Weights) -> None:
+        self.actor.weights_version = apply_weights(self, msg)
 
     def start_episode(self, loads: np.ndarray) -> None:
         self.episode += 1
@@ -75,37 +82,31 @@ class HostActor:
         self.food, self.loads = 0.0, np.asarray(loads, dtype=np.float64)
         self.feedback.reset(0)
 
-    def act(self, batch: AgentBatch, train_mask: np.ndarray) -> np.ndarray:
+    def frame(self, batch: AgentBatch, train_mask: np.ndarray, team_rewards: np.ndarray, rows: np.ndarray) -> Frame:
+        """What this host's agents (``batch``: rows ``rows`` of the world's message) see."""
+        return make_frame(self.cfg, batch, train_mask, self.feedback, team_rewards, rows)
+
+    def act(self, batch: AgentBatch, frame: Frame) -> np.ndarray:
         """Actions for every agent of the batch (rows in id order); needs weights."""
         if self.starting:
             self.actor.start_episode(self.episode)
             self.starting = False
-        if not len(self.actor):
-            self.chunk_version = self.version
-        actions = self.actor.act(Frame(batch.observations, self._extra(batch), batch.action_mask, train_mask,
-                                       np.asarray(batch.queued, dtype=bool)))
+        actions = self.actor.act(frame)
         self.feedback.record(batch.agent_ids, actions, batch.positions, batch.queued)
         return actions
 
-    def _extra(self, batch: AgentBatch) -> np.ndarray:
-        return extra_inputs(nest_features(batch.positions, batch.loads, batch.world_shape),
-                            self.feedback.features(batch.agent_ids, batch.positions, batch.queued))
-
-    def outcome(self, batch: AgentBatch, team_rewards: np.ndarray, rows: np.ndarray, done: bool):
-        """The observations after a step (``team_rewards``: every agent's; ``rows``: this
-        host's); returns the Rollout message when the chunk is complete, else None."""
-        self.actor.reward(share_rewards(team_rewards, self.cfg.team_reward)[rows])
-        loads = np.asarray(batch.loads, dtype=np.float64)
+    def outcome(self, frame: Frame, loads: np.ndarray, done: bool) -> Rollout | None:
+        """The frame after a step and the agents' loads in it; returns the chunk's Rollout when
+        it is complete and any of these agents learns, else None."""
+        self.actor.reward(frame.rewards)
+        loads = np.asarray(loads, dtype=np.float64)
         self.food += float(np.clip(self.loads - loads, 0.0, None).sum())  # every agent's deliveries
         self.loads = loads
         if not done and len(self.actor) < self.cfg.rollout_steps:
             return None
-        rollout = self.actor.rollout(batch.observations, self._extra(batch), bootstrap=False)
-        food, self.food = self.food, 0.0
-        if not len(self.actor.learning):  # none of these agents learns: nothing to send
-            return None
-        return rollout_message(rollout, self.chunk_version, self.host, self.episode, food,
-                               extra=self.net.config.reads_extra)
+        rollout = self.actor.rollout(frame, done, self.food)
+        self.food = 0.0
+        return rollout if len(self.actor.learning) else None
 
 
 SWITCH_MODES = ("chunk", "episode")
@@ -124,15 +125,16 @@ class LearningHost:
     after each chunk (on-policy; same seeds and settings give the same learning curve).
     ``switch="episode"``: an episode is played with one weights version while the trainer
     learns from its first chunks; at the next episode's start the host waits for the updates
-    of all its rollouts and takes the newest weights (the trainer corrects for the lag with the
-    behaviour version's outputs; with one host the lag stays below the chunks per episode).
+    of all its rollouts and takes the newest weights (each rollout carries what the weights that
+    acted computed, so the trainer's PPO ratio is taken against them; with one host the lag
+    stays below the chunks per episode).
 
     An episode starts at step 0 of a scenario the host has not played yet: observations of a
     new episode that arrive before its (latched) scenario are held until it does.
     """
 
     def __init__(self, agent_ids: list[int], cfg: TrainConfig, switch: str = "chunk", first_episode: int = 0,
-                 namespace: str = qos.DEFAULT_NAMESPACE, name: str | None = None, torch_threads: int = 1):
+                 namespace: str = topics.DEFAULT_NAMESPACE, name: str | None = None, torch_threads: int = 1):
         if switch not in SWITCH_MODES:
             raise ValueError(f"unknown weights switch {switch!r}; choose from {', '.join(SWITCH_MODES)}")
         torch.set_num_threads(torch_threads)
@@ -140,15 +142,15 @@ class LearningHost:
         self.control = rclpy.create_node(name or f"agent_host_{os.getpid()}", namespace=namespace)
         self.nodes = [self.control]
         self.log = self.control.get_logger()
-        self.actor = HostActor(cfg, agent_ids, host=self.control.get_name(), first_episode=first_episode)
+        self.actor = HostActor(cfg, agent_ids, first_episode=first_episode)
         self.ids = self.actor.ids
         node = self.control
-        node.create_subscription(ScenarioDescription, qos.SCENARIO, self._on_scenario, qos.LATCHED)
-        node.create_subscription(ObservationBatch, qos.OBSERVATIONS, self._on_batch, qos.STREAM)
-        node.create_subscription(Weights, qos.WEIGHTS, self._on_weights, qos.LATCHED)
-        self.actions_pub = node.create_publisher(ActionBatch, f"~/{qos.ACTIONS}", qos.STREAM_WRITER)
+        node.create_subscription(ScenarioDescription, topics.SCENARIO, self._on_scenario, qos.LATCHED)
+        node.create_subscription(ObservationBatch, topics.OBSERVATIONS, self._on_batch, qos.STREAM)
+        node.create_subscription(Weights, topics.WEIGHTS, self._on_weights, qos.LATCHED)
+        self.actions_pub = node.create_publisher(ActionBatch, f"~/{topics.ACTIONS}", qos.STREAM_WRITER)
         self.claim = Claim(node, list(self.ids), self.actions_pub.topic_name, publishers=[self.actions_pub])
-        self.rollouts_pub = node.create_publisher(Rollout, qos.ROLLOUTS, qos.ROLLOUT)
+        self.rollouts_pub = node.create_publisher(RolloutMsg, topics.ROLLOUTS, qos.ROLLOUT)
         self.played = ""  # scenario of the episode being (or last) played
         self.next_scenario = ""  # a scenario not played yet
         self.scenario_json = ""  # the newest scenario seen
@@ -157,7 +159,7 @@ class LearningHost:
         self.episodes = 0  # episodes finished
         self.episode_rollouts = 0  # rollouts sent in the current episode
         self.held: ObservationBatch | None = None  # newest observations not dealt with yet
-        self.ready = None  # (AgentBatch, training masks) to act on once the weights allow
+        self.ready: tuple[AgentBatch, Frame] | None = None  # to act on once the weights allow
         self.newest = None  # the newest Weights message received
         self.wait_version: int | None = -1  # act only with weights newer than this (None: act now)
         self.answered_step, self.answer = -1, np.zeros(0, dtype=np.int64)
@@ -212,13 +214,15 @@ class LearningHost:
                            once=True)
             return True
         batch = convert.decode_observation_batch(msg, rows)
-        if not self.playing:
+        starting = not self.playing
+        if starting:  # before its first frame: the agents' action feedback starts afresh
             self._start_episode(batch)
-        else:
-            team_rewards = read(msg.rewards, np.float32)  # every agent's: for team_reward
-            rollout = self.actor.outcome(batch, team_rewards, rows, bool(msg.done))
+        train_mask = read(msg.train_masks, np.uint8).reshape(-1, N_ACTIONS)[rows].astype(bool)
+        frame = self.actor.frame(batch, train_mask, read(msg.rewards, np.float32), rows)
+        if not starting:
+            rollout = self.actor.outcome(frame, batch.loads, bool(msg.done))
             if rollout is not None:
-                self.rollouts_pub.publish(rollout)
+                self.rollouts_pub.publish(convert.encode_rollout(rollout))
                 self.episode_rollouts += 1
                 if self.switch == "chunk":  # act on with the weights this rollout makes
                     self.wait_version, self.waiting_since = self.actor.version, time.monotonic()
@@ -229,8 +233,7 @@ class LearningHost:
                 self.playing = False
                 self.episodes += 1
                 return True
-        masks = read(msg.train_masks, np.uint8).reshape(-1, convert.ACTION_COUNT)[rows].astype(bool)
-        self.ready = (batch, masks)
+        self.ready = (batch, frame)
         return True
 
     def _start_episode(self, batch: AgentBatch) -> None:
@@ -256,15 +259,15 @@ class LearningHost:
             self.held = None
         if self.ready is None or not self._weights_ready():
             return
-        batch, masks = self.ready
+        batch, frame = self.ready
         self.ready = None
-        self.answer = self.actor.act(batch, masks)
+        self.answer = self.actor.act(batch, frame)
         self.answered_step = batch.step
         self.actions_pub.publish(convert.encode_actions(batch.step, self.ids, self.answer))
 
 
 def serve_learning_agents(agent_ids: list[int], cfg: TrainConfig, switch: str = "chunk",
-                          first_episode: int = 0, namespace: str = qos.DEFAULT_NAMESPACE,
+                          first_episode: int = 0, namespace: str = topics.DEFAULT_NAMESPACE,
                           name: str | None = None, episodes: int | None = None, domain_id: int | None = None,
                           torch_threads: int = 1) -> int:
     """Host learning agents until interrupted (or until ``episodes`` episodes are played and

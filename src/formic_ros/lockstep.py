@@ -11,9 +11,8 @@ from typing import Callable
 
 import numpy as np
 
+import formic_topics as topics
 from formic_world import NO_ACTION
-
-from . import qos
 
 RESEND_S = 0.5  # step-0 observations are re-sent this often until every agent has answered
 STEP_RESEND_S = 0.25  # later steps: re-sent to the agents that have not answered after this long
@@ -87,7 +86,7 @@ class ActionInbox:
     def offer_one(self, step: int, agent: int, action: int, via: str = "") -> None:
         """One agent's answer on its own topic (the common case, kept cheap)."""
         if step != self.step or not self.is_open or not 0 <= action <= 4 or self.received[agent]:
-            self.offer(step, np.array([agent]), np.array([action]), qos.agent_topic(agent, qos.AGENT_ACTION), via)
+            self.offer(step, np.array([agent]), np.array([action]), topics.agent_topic(agent, topics.AGENT_ACTION), via)
             return
         if self.owners is not None and not self.owners.allowed(via, agent):
             return

@@ -29,6 +29,7 @@ from formic_interfaces.msg import ActionBatch
 from std_msgs.msg import String
 
 from formic_runtime.team import format_ids
+import formic_topics as topics
 
 from . import qos
 from .graph import RecorderReports, qualified_name, recorders_hear, recorders_matched
@@ -58,10 +59,10 @@ class Claim:
         self.recorders = 0  # how many recorders the world waits for (from ``owners``)
         self.recorder_reports = RecorderReports(node)
         self._ready, self._checked_at = False, -np.inf
-        self.publisher = node.create_publisher(String, qos.CLAIMS, qos.LATCHED)
+        self.publisher = node.create_publisher(String, topics.CLAIMS, qos.LATCHED)
         self.publisher.publish(String(data=json.dumps({"owner": node.get_fully_qualified_name(), "token": self.token,
                                                        "agents": self.agents, "actions": actions_topic})))
-        node.create_subscription(String, qos.OWNERS, self._on_owners, qos.LATCHED)
+        node.create_subscription(String, topics.OWNERS, self._on_owners, qos.LATCHED)
 
     def _on_owners(self, msg: String) -> None:
         owners_msg = json.loads(msg.data)
@@ -127,8 +128,8 @@ class Ownership:
         self.trusted: dict[tuple[str, int], float] = {}  # (topic, agent) -> allowed until (monotonic s)
         self.batch_agents: dict[str, np.ndarray] = {}  # an owner's batch topic -> the agents it drives
         self.namespace = node.get_namespace().rstrip("/")
-        subscribe(String, qos.CLAIMS, qos.reliable(1000, latched=True), self._on_claim)
-        self.owners_pub = node.create_publisher(String, qos.OWNERS, qos.LATCHED)
+        subscribe(String, topics.CLAIMS, qos.reliable(1000, latched=True), self._on_claim)
+        self.owners_pub = node.create_publisher(String, topics.OWNERS, qos.LATCHED)
         node.create_timer(RECHECK_S, self._recheck)
 
     # ------------------------------------------------------------------ claims
@@ -138,7 +139,7 @@ class Ownership:
             claim = {"owner": str(c["owner"]), "token": str(c["token"]), "agents": [int(a) for a in c["agents"]],
                      "actions": c.get("actions") and str(c["actions"])}
         except (ValueError, KeyError, TypeError):
-            self._count("malformed", 1, f"{qos.CLAIMS}: {msg.data[:80]!r}", "malformed claim")
+            self._count("malformed", 1, f"{topics.CLAIMS}: {msg.data[:80]!r}", "malformed claim")
             return
         if claim["token"] in self.claims or claim["token"] in self.outsiders:
             return
@@ -204,7 +205,7 @@ class Ownership:
         """The claim a node that is ``agent_K`` needs none of: it owns agent K, when K is left to
         other nodes, as soon as it is the only publisher on ``agent_K/action`` (None: it is not)
         and the recorders the world waits for hear it (``RECORDER_PENDING`` until then)."""
-        node = f"{self.namespace}/{qos.agent_node_name(agent)}"
+        node = f"{self.namespace}/{topics.agent_node_name(agent)}"
         if (self.external is not None and agent not in self.external) or via != self._action_topic(agent):
             return None
         if self._publishers(via, fresh=True) != [node]:
@@ -262,7 +263,7 @@ class Ownership:
         self.batch_agents.clear()
 
     def _action_topic(self, agent: int) -> str:
-        return qos.full_name(self.namespace or "/", qos.agent_topic(agent, qos.AGENT_ACTION))
+        return topics.full_name(self.namespace or "/", topics.agent_topic(agent, topics.AGENT_ACTION))
 
     def _publishers(self, topic: str, fresh: bool = False) -> list[str]:
         """The nodes publishing on ``topic`` (sorted, one entry per publisher), from the graph
@@ -279,7 +280,7 @@ class Ownership:
             return via == claim["actions"]
         if via != self._action_topic(agent):
             return False
-        node = f"{self.namespace}/{qos.agent_node_name(agent)}"
+        node = f"{self.namespace}/{topics.agent_node_name(agent)}"
         return node in self._publishers(via) or node in self._publishers(via, fresh=True)  # perhaps just discovered
 
     def _shared(self, via: str, agent: int) -> bool:

@@ -18,6 +18,7 @@ from rclpy.node import Node
 
 from formic_runtime.registry import make_policy
 from formic_runtime.threads import configure_threads
+import formic_topics as topics
 from formic_world import World
 
 from .ownership import Claim
@@ -30,15 +31,15 @@ RESEND_S = 1.0  # re-send the last actions when the world has not moved on for t
 class PlannerNode(Node):
     """Node ``planner``; call :meth:`tick` from the spin loop (it retries unsent actions)."""
 
-    def __init__(self, namespace: str = qos.DEFAULT_NAMESPACE):
+    def __init__(self, namespace: str = topics.DEFAULT_NAMESPACE):
         super().__init__("planner", namespace=namespace)
         configure_threads()
         self.planner = make_policy("planner")
-        self.actions_pub = self.create_publisher(ActionBatch, f"~/{qos.ACTIONS}", qos.STREAM_WRITER)
+        self.actions_pub = self.create_publisher(ActionBatch, f"~/{topics.ACTIONS}", qos.STREAM_WRITER)
         self.claim: Claim | None = None  # made when the team size is known
-        self.create_subscription(ScenarioDescription, qos.SCENARIO, self._on_scenario, qos.LATCHED)
-        self.create_subscription(ActionBatch, qos.APPLIED_ACTIONS, self._on_applied, qos.STREAM)
-        self.create_subscription(WorldState, qos.STATE, self._on_state, qos.STREAM)
+        self.create_subscription(ScenarioDescription, topics.SCENARIO, self._on_scenario, qos.LATCHED)
+        self.create_subscription(ActionBatch, topics.APPLIED_ACTIONS, self._on_applied, qos.STREAM)
+        self.create_subscription(WorldState, topics.STATE, self._on_state, qos.STREAM)
         self.world: World | None = None
         self.scenario_json = ""
         self.horizon = -1  # its episode's steps (-1: no scenario yet)
@@ -110,7 +111,7 @@ class PlannerNode(Node):
         self.sent_at = now
 
 
-def serve_planner(namespace: str = qos.DEFAULT_NAMESPACE, once: bool = False,
+def serve_planner(namespace: str = topics.DEFAULT_NAMESPACE, once: bool = False,
                   domain_id: int | None = None) -> int:
     """Plan until interrupted (or, with ``once``, until an episode ends); returns the number
     of replica mismatches seen."""

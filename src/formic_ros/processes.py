@@ -3,7 +3,8 @@ terminal's Ctrl-C reaches only the launcher, which then stops the children in or
 parent-death signal (so even a SIGKILLed launcher leaves no orphans); stop it with SIGINT, then
 SIGTERM, then SIGKILL to its whole process group, each after a grace period, and reap it; its
 log file; the JSON lines it prints; the shared-memory files of Fast DDS processes that died
-without removing them."""
+without removing them. While a launch holds children, the first SIGINT, SIGTERM or SIGHUP
+stops it and later ones cannot cut the stop short (:class:`Children`)."""
 
 from __future__ import annotations
 
@@ -15,11 +16,14 @@ import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from contextlib import suppress
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 STOP_GRACE_S = (5.0, 3.0)  # after SIGINT, after SIGTERM; then SIGKILL
 RECORDER_GRACE_S = (20.0, 5.0)  # the recorder closes its file on SIGINT
 PR_SET_PDEATHSIG = 1
@@ -140,7 +144,13 @@ class Children:
     """The child processes of one launch, as a context: on exit every child is stopped (all
     at once, :func:`stop_all`) and reaped, its files closed, the launch's temporary directory
     :attr:`dir` (option files, stdout files) and stale shared memory removed; exit statuses in
-    :attr:`codes`. A child's log goes to stderr, or to ``LOG_DIR/NAME.log``."""
+    :attr:`codes`. A child's log goes to stderr, or to ``LOG_DIR/NAME.log``.
+
+    Inside the context (in the main thread) the first of :data:`STOP_SIGNALS` raises
+    KeyboardInterrupt; later ones, and any during the stop, are ignored: a second Ctrl-C,
+    ``timeout``'s SIGTERM to the command and then to its group, or a closing terminal's SIGHUP
+    would otherwise end the launcher mid-stop, and the parent-death signal would SIGKILL a
+    recorder before it closed its file."""
 
     def __init__(self, prefix: str, env: dict[str, str], log_dir: str | None):
         self._tmp = tempfile.TemporaryDirectory(prefix=prefix)
@@ -148,11 +158,21 @@ class Children:
         self.children: list[Child] = []
         self.files: list = []
         self.codes: dict[str, int] = {}
+        self._stopping = False
+        self._handlers: dict[int, Any] = {}
 
     def __enter__(self) -> Children:
+        if threading.current_thread() is threading.main_thread():
+            self._handlers = {s: signal.signal(s, self._on_stop_signal) for s in STOP_SIGNALS}
         return self
 
+    def _on_stop_signal(self, signum: int, _frame) -> None:
+        if not self._stopping:
+            self._stopping = True
+            raise KeyboardInterrupt(f"signal {signum}")
+
     def __exit__(self, *exc) -> None:
+        self._stopping = True
         try:
             self.codes = stop_all(self.children)
         finally:
@@ -160,6 +180,8 @@ class Children:
                 file.close()
             self._tmp.cleanup()
             remove_stale_shm()  # what a child killed with SIGKILL left behind
+            for sig, handler in self._handlers.items():
+                signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
 
     def start(self, name: str, spec: dict, stdout=None, grace_s: tuple[float, float] = STOP_GRACE_S) -> Child:
         """Start node process ``name`` (:mod:`formic_ros.node_process`) on ``spec``, written as

@@ -1,9 +1,7 @@
-"""Every topic of the ForMIC ROS system: its name, message type and QoS (:data:`TOPICS`; one
-place, documented in docs/ros.md).
+"""Every topic's QoS profile (:data:`TOPICS` pairs it with the topic's name and message type
+from :mod:`formic_topics`; one place, documented in docs/ros.md).
 
-Names are relative to the namespace (default ``/formic``) except ``/clock``; per-agent topics
-are ``agent_K/observation`` and ``agent_K/action`` (:func:`agent_topic`). Everything is
-reliable: lockstep cannot afford lost messages, and a resend would cost a deadline.
+Everything is reliable: lockstep cannot afford lost messages, and a resend would cost a deadline.
 """
 
 from __future__ import annotations
@@ -12,27 +10,7 @@ from dataclasses import dataclass
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-DEFAULT_NAMESPACE = "/formic"
-
-SCENARIO = "scenario"
-OBSERVATIONS = "observations"
-ACTIONS = "actions"
-STATE = "state"
-APPLIED_ACTIONS = "applied_actions"
-SUMMARY = "summary"
-MAP = "map"
-AGENT_MARKERS = "agent_markers"
-SCORE = "score"
-CLOCK = "/clock"
-AGENT_OBSERVATION = "observation"  # under the agent node: /formic/agent_K/observation
-AGENT_ACTION = "action"  # /formic/agent_K/action
-ROLLOUTS = "rollouts"  # learning hosts -> trainer
-WEIGHTS = "weights"  # trainer -> learning hosts
-CLAIMS = "claims"  # driver nodes -> world: the agents each drives (formic_ros.ownership)
-OWNERS = "owners"  # world -> driver nodes: who drives which agent
-RECORDER_MATCHES = "recorder_matches"  # recorders -> world and drivers: what each recorder's readers matched
-
-NO_ACTION_WIRE = 255  # an applied action that did not arrive in time (ActionBatch.actions)
+import formic_topics as topics
 
 
 def reliable(depth: int, latched: bool = False) -> QoSProfile:
@@ -62,9 +40,11 @@ LOG_DEPTH = 200
 LOG = reliable(LOG_DEPTH)
 # Viewer topics (map, markers): the newest one matters, and a viewer that opens late sees it.
 VIEWER = LATCHED
-# Rollouts: a few chunks may wait while the trainer updates.
+# Rollouts: a few chunks may wait in a host's writer, and the trainer's reader keeps all that
+# arrive while it updates (a keep-last reader would drop the oldest).
 ROLLOUT_DEPTH = 16
 ROLLOUT = reliable(ROLLOUT_DEPTH)
+ROLLOUT_READER = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
 
 
 @dataclass(frozen=True)
@@ -77,40 +57,23 @@ class Topic:
         return self.qos.durability == DurabilityPolicy.TRANSIENT_LOCAL
 
 
-_FORMIC = "formic_interfaces/msg/"
-TOPICS: dict[str, Topic] = {
-    SCENARIO: Topic(_FORMIC + "ScenarioDescription", LATCHED),
-    SUMMARY: Topic("std_msgs/msg/String", LATCHED),
-    STATE: Topic(_FORMIC + "WorldState", LOG),
-    APPLIED_ACTIONS: Topic(_FORMIC + "ActionBatch", LOG),
-    OBSERVATIONS: Topic(_FORMIC + "ObservationBatch", STREAM_WRITER),
-    ACTIONS: Topic(_FORMIC + "ActionBatch", STREAM_WRITER),
-    SCORE: Topic("std_msgs/msg/Float64", LOG),
-    MAP: Topic("nav_msgs/msg/OccupancyGrid", VIEWER),
-    AGENT_MARKERS: Topic("visualization_msgs/msg/MarkerArray", VIEWER),
-    CLOCK: Topic("rosgraph_msgs/msg/Clock", LOG),
-    AGENT_OBSERVATION: Topic(_FORMIC + "AgentObservation", STREAM_WRITER),  # under agent_K/
-    AGENT_ACTION: Topic(_FORMIC + "AgentAction", STREAM_WRITER),  # under agent_K/
-    ROLLOUTS: Topic(_FORMIC + "Rollout", ROLLOUT),
-    WEIGHTS: Topic(_FORMIC + "Weights", LATCHED),
-    CLAIMS: Topic("std_msgs/msg/String", LATCHED),
-    OWNERS: Topic("std_msgs/msg/String", LATCHED),
-    RECORDER_MATCHES: Topic("std_msgs/msg/String", LATCHED),
+_OFFERED: dict[str, QoSProfile] = {  # by each topic's publishers
+    topics.SCENARIO: LATCHED,
+    topics.SUMMARY: LATCHED,
+    topics.STATE: LOG,
+    topics.APPLIED_ACTIONS: LOG,
+    topics.OBSERVATIONS: STREAM_WRITER,
+    topics.ACTIONS: STREAM_WRITER,
+    topics.SCORE: LOG,
+    topics.MAP: VIEWER,
+    topics.AGENT_MARKERS: VIEWER,
+    topics.CLOCK: LOG,
+    topics.AGENT_OBSERVATION: STREAM_WRITER,  # under agent_K/
+    topics.AGENT_ACTION: STREAM_WRITER,  # under agent_K/
+    topics.ROLLOUTS: ROLLOUT,
+    topics.WEIGHTS: LATCHED,
+    topics.CLAIMS: LATCHED,
+    topics.OWNERS: LATCHED,
+    topics.RECORDER_MATCHES: LATCHED,
 }
-# The world's topics, which a recorder subscribes to at once (the rest it discovers).
-WORLD_TOPICS = (SCENARIO, SUMMARY, STATE, APPLIED_ACTIONS, OBSERVATIONS, ACTIONS, SCORE, MAP, AGENT_MARKERS, CLOCK)
-
-
-def agent_node_name(agent_id: int) -> str:
-    """The node name of agent K (``agent_K``); its topics are ``<namespace>/agent_K/...``."""
-    return f"agent_{agent_id}"
-
-
-def agent_topic(agent_id: int, leaf: str) -> str:
-    """``agent_K/observation`` or ``agent_K/action``, relative to the namespace."""
-    return f"{agent_node_name(agent_id)}/{leaf}"
-
-
-def full_name(namespace: str, topic: str) -> str:
-    """Absolute topic name (for messages and docs)."""
-    return topic if topic.startswith("/") else f"{namespace.rstrip('/')}/{topic}"
+TOPICS: dict[str, Topic] = {name: Topic(msgtype, _OFFERED[name]) for name, msgtype in topics.TOPIC_TYPES.items()}

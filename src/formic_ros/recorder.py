@@ -30,16 +30,16 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
 from std_msgs.msg import String
 
+import formic_topics as topics
 from formic_record.bag import BagWriter, package_version
 from formic_record.reading import Recording
 
-from . import qos as topics
+from . import qos
 from .graph import RECORDER_NODE, recorder_report
 
 DISCOVERY_PERIOD_S = 0.2
 REPORT_PERIOD_S = 0.02  # a changed match count is reported within this long
 STREAM_DEPTH = 100  # the depth recorded for (and replayed with) stream topics
-SCENARIO_TYPE = topics.TOPICS[topics.SCENARIO].msgtype
 
 
 def message_class(msgtype: str):
@@ -124,14 +124,14 @@ class Recorder(Node):
         self.skipped: dict[str, str] = {}
         self._recorded: dict[str, object] = {}
         self.recorder_id = f"{self.get_fully_qualified_name()}#{os.getpid()}-{uuid.uuid4().hex[:8]}"
-        self.report_pub = self.create_publisher(String, topics.RECORDER_MATCHES, topics.LATCHED)
+        self.report_pub = self.create_publisher(String, topics.RECORDER_MATCHES, qos.LATCHED)
         self._report_timer = self.create_timer(REPORT_PERIOD_S, self._report)  # runs only while a report is due
         run_info = {"package_version": package_version()}
         if options.checkpoint_id:
             run_info["checkpoint_id"] = options.checkpoint_id
         writer.set_run_info(run_info)
         for leaf in topics.WORLD_TOPICS:
-            name, spec = topics.full_name(options.namespace, leaf), topics.TOPICS[leaf]
+            name, spec = topics.full_name(options.namespace, leaf), qos.TOPICS[leaf]
             if self._wanted(name):
                 self._subscribe(name, spec.msgtype, subscription_qos(spec.latched))
         self._discover()
@@ -148,7 +148,7 @@ class Recorder(Node):
             for leaf in (topics.AGENT_OBSERVATION, topics.AGENT_ACTION):
                 name = topics.full_name(self.options.namespace, topics.agent_topic(agent, leaf))
                 if name not in self._recorded and name not in self.skipped and self._wanted(name):
-                    self._subscribe(name, topics.TOPICS[leaf].msgtype, subscription_qos(False))
+                    self._subscribe(name, topics.TOPIC_TYPES[leaf], subscription_qos(False))
 
     def _wanted(self, name: str) -> bool:
         if self.options.topics:
@@ -200,11 +200,11 @@ class Recorder(Node):
     def _on_message(self, topic: str, msgtype: str, data: bytes) -> None:
         self.writer.write(topic, time.time_ns(), data)
         self.counts[topic] += 1
-        if msgtype == SCENARIO_TYPE:
+        if msgtype == topics.SCENARIO_TYPE:
             self._describe_run(data)
 
     def _describe_run(self, data: bytes) -> None:
-        msg = self.writer.typestore.deserialize_cdr(data, SCENARIO_TYPE)
+        msg = self.writer.typestore.deserialize_cdr(data, topics.SCENARIO_TYPE)
         self._subscribe_agents(msg.scenario_json)
         self.writer.set_run_info({
             "seed": str(msg.seed),

@@ -26,6 +26,7 @@ from std_msgs.msg import Float64, String
 
 from formic_agent.policy import AgentBatch
 from formic_runtime.episode import EpisodeStats
+import formic_topics as topics
 from formic_world import Scenario, StepResult, World
 
 from .graph import RecorderReports, recorders_present, wait_for_recorders
@@ -42,7 +43,7 @@ ACK_TIMEOUT_S = 3.5  # at the end, how long subscribers get to acknowledge the l
 
 @dataclass(frozen=True)
 class WorldNodeOptions:
-    namespace: str = qos.DEFAULT_NAMESPACE
+    namespace: str = topics.DEFAULT_NAMESPACE
     deadline_s: float = 1.0  # lockstep: how long a step waits for the last action
     startup_timeout_s: float = 60.0  # how long step 0 waits for every agent
     rate_hz: float | None = None  # free-running: steps per second (no waiting for agents)
@@ -72,20 +73,20 @@ class WorldNode(Node):
         encoding_code(options.observation_encoding)  # an unknown encoding fails here, not at step 0
 
         pub = self.create_publisher
-        self.scenario_pub = pub(ScenarioDescription, qos.SCENARIO, qos.LATCHED)
-        self.summary_pub = pub(String, qos.SUMMARY, qos.LATCHED)
-        self.observations_pub = pub(ObservationBatch, qos.OBSERVATIONS, qos.STREAM_WRITER)
-        self.state_pub = pub(WorldState, qos.STATE, qos.LOG)
-        self.applied_pub = pub(ActionBatch, qos.APPLIED_ACTIONS, qos.LOG)
-        self.score_pub = pub(Float64, qos.SCORE, qos.LOG)
-        self.clock_pub = pub(viewer_msgs.Clock, qos.CLOCK, qos.LOG)
-        self.map_pub = pub(viewer_msgs.OccupancyGrid, qos.MAP, qos.VIEWER)
-        self.markers_pub = pub(viewer_msgs.MarkerArray, qos.AGENT_MARKERS, qos.VIEWER)
-        self.agent_obs_pubs = [pub(AgentObservation, qos.agent_topic(a, qos.AGENT_OBSERVATION), qos.STREAM_WRITER)
+        self.scenario_pub = pub(ScenarioDescription, topics.SCENARIO, qos.LATCHED)
+        self.summary_pub = pub(String, topics.SUMMARY, qos.LATCHED)
+        self.observations_pub = pub(ObservationBatch, topics.OBSERVATIONS, qos.STREAM_WRITER)
+        self.state_pub = pub(WorldState, topics.STATE, qos.LOG)
+        self.applied_pub = pub(ActionBatch, topics.APPLIED_ACTIONS, qos.LOG)
+        self.score_pub = pub(Float64, topics.SCORE, qos.LOG)
+        self.clock_pub = pub(viewer_msgs.Clock, topics.CLOCK, qos.LOG)
+        self.map_pub = pub(viewer_msgs.OccupancyGrid, topics.MAP, qos.VIEWER)
+        self.markers_pub = pub(viewer_msgs.MarkerArray, topics.AGENT_MARKERS, qos.VIEWER)
+        self.agent_obs_pubs = [pub(AgentObservation, topics.agent_topic(a, topics.AGENT_OBSERVATION), qos.STREAM_WRITER)
                                for a in range(n)]
         sub = functools.partial(convert.checked_subscription, self, on_malformed=self._on_malformed)
-        self.actions_sub = sub(ActionBatch, qos.ACTIONS, qos.STREAM, self._on_action_batch)
-        action_readers = [sub(AgentAction, qos.agent_topic(a, qos.AGENT_ACTION), qos.STREAM,
+        self.actions_sub = sub(ActionBatch, topics.ACTIONS, qos.STREAM, self._on_action_batch)
+        action_readers = [sub(AgentAction, topics.agent_topic(a, topics.AGENT_ACTION), qos.STREAM,
                               lambda m, a=a: self._on_agent_action(a, m)) for a in range(n)]
         self.action_topics = [reader.topic_name for reader in action_readers]
         self.recorder_reports = RecorderReports(self)
@@ -120,7 +121,7 @@ class WorldNode(Node):
     # ------------------------------------------------------------------ actions in
     def _on_action_batch(self, msg: ActionBatch) -> None:
         ids = read(msg.agent_ids, np.uint32)
-        self.inbox.offer(msg.step, ids, read(msg.actions, np.uint8), f"{qos.ACTIONS} ({len(ids)} agents)",
+        self.inbox.offer(msg.step, ids, read(msg.actions, np.uint8), f"{topics.ACTIONS} ({len(ids)} agents)",
                          self.actions_sub.topic_name)
 
     def _on_malformed(self, topic: str, size: int) -> None:
@@ -128,7 +129,7 @@ class WorldNode(Node):
 
     def _on_agent_action(self, agent: int, msg: AgentAction) -> None:
         if msg.agent_id != agent:
-            source = qos.agent_topic(agent, qos.AGENT_ACTION)
+            source = topics.agent_topic(agent, topics.AGENT_ACTION)
             self.inbox.reject("agent id mismatch", 1, f"{source}: message for agent {msg.agent_id}")
             return
         self.inbox.offer_one(msg.step, agent, msg.action, self.action_topics[agent])
@@ -181,9 +182,9 @@ class WorldNode(Node):
     # ---------------------------------------------------------------------- waiting
     def _wait_for_subscribers(self, executor) -> None:
         """Before step 0: ``require_subscribers`` are heard, and the recorders matched everything."""
-        publishers = {qos.STATE: self.state_pub, qos.APPLIED_ACTIONS: self.applied_pub,
-                      qos.OBSERVATIONS: self.observations_pub, qos.SUMMARY: self.summary_pub,
-                      qos.SCENARIO: self.scenario_pub, qos.SCORE: self.score_pub}
+        publishers = {topics.STATE: self.state_pub, topics.APPLIED_ACTIONS: self.applied_pub,
+                      topics.OBSERVATIONS: self.observations_pub, topics.SUMMARY: self.summary_pub,
+                      topics.SCENARIO: self.scenario_pub, topics.SCORE: self.score_pub}
         self.ownership.expect_recorders(max(self.options.recorders, recorders_present(self)))  # drivers wait too
         deadline = time.monotonic() + self.options.startup_timeout_s
         while missing := [n for n in self.options.require_subscribers if publishers[n].get_subscription_count() == 0]:

@@ -5,8 +5,9 @@ unfiltered agents under filter annealing, the "replace" filter's replacements), 
 from the global episode number at every episode start (:func:`actor_streams`), so a resumed
 run acts exactly as an uninterrupted one, and one rollout buffer for its
 learning agents. Per episode :meth:`Actor.start_episode`; per step :meth:`Actor.act`, then
-:meth:`Actor.reward`; at a chunk's end :meth:`Actor.rollout`, for the learner. ``formic
-train`` runs one over all its worlds' agents, a ROS learning host one over its agents.
+:meth:`Actor.reward`; at a chunk's end :meth:`Actor.rollout`: the :class:`Rollout` the learner
+takes as it is. ``formic train`` runs one over all its worlds' agents, a ROS learning host one
+over its agents.
 """
 
 from __future__ import annotations
@@ -18,7 +19,9 @@ from formic_agent.network import ForMICNet
 
 from .algorithm import sampling_mask
 from .config import TrainConfig
+from .rollout import Rollout
 from .worlds import Frame
+
 
 def actor_streams(cfg: TrainConfig, episode: int, first_agent: int = 0) -> tuple[torch.Generator, np.random.Generator]:
     """The torch sampler and the numpy stream of an actor in global episode ``episode`` whose
@@ -54,29 +57,34 @@ def filter_probability(cfg: TrainConfig, episode: int) -> float:
 def select_actions(cfg: TrainConfig, logits: torch.Tensor, train_mask: np.ndarray, generator: torch.Generator,
                    rng: np.random.Generator,
                    sample_mask: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Sample actions under the training filter. Returns (actions, log-probs, value_mask).
-    In "mask" mode ``sample_mask`` (default: ``sampling_mask``) says what may be sampled."""
+    """Sample actions under the training filter. Returns (actions, log-probs, value_mask: False
+    where the "replace" filter replaced the action). In "mask" mode ``sample_mask`` (default:
+    ``sampling_mask``) says what may be sampled."""
     if cfg.action_filter == "mask":
         allowed = sampling_mask(cfg, train_mask) if sample_mask is None else sample_mask
         logits = logits.masked_fill(~torch.from_numpy(allowed), -1e9)
     actions = torch.multinomial(torch.softmax(logits, -1), 1, generator=generator)[:, 0].numpy().copy()
-    value_mask = np.ones(len(actions), dtype=np.float32)
+    value_mask = np.ones(len(actions), dtype=bool)
     if cfg.action_filter == "replace":  # invalid samples are replaced by a random valid action
         rows = np.arange(len(actions))
         invalid = ~train_mask[rows, actions] & train_mask.any(1)
         for i in np.flatnonzero(invalid):
             actions[i] = rng.choice(np.flatnonzero(train_mask[i]))
-        value_mask[invalid] = 0.0
+        value_mask[invalid] = False
     logp = torch.log_softmax(logits, -1).gather(-1, torch.from_numpy(actions)[:, None])[:, 0]
     return actions, logp.numpy(), value_mask
 
 
 class Actor:
-    def __init__(self, cfg: TrainConfig, net: ForMICNet, agent_ids):
-        self.cfg, self.net = cfg, net
+    """``weights_version``: the version of the weights in ``net``, kept up to date by whoever changes them."""
+
+    def __init__(self, cfg: TrainConfig, net: ForMICNet, agent_ids, weights_version: int = 0):
+        self.cfg, self.net, self.weights_version = cfg, net, weights_version
+        self.chunk_version = weights_version  # the weights that act in the current chunk
         self.ids = np.asarray(agent_ids, dtype=np.int64)
         self.learning = learning_rows(cfg, self.ids)
         self.first_agent = int(self.ids[0]) if len(self.ids) else 0
+        self.episode = 0
         self.generator: torch.Generator | None = None  # the episode's streams: set by start_episode
         self.rng: np.random.Generator | None = None
         self.unfiltered = np.zeros(len(self.ids), dtype=bool)
@@ -91,6 +99,7 @@ class Actor:
     def start_episode(self, episode: int) -> None:
         """A new episode (global number ``episode``): fresh LSTM states, and which agents act
         unfiltered in it (filter annealing), and the episode's own random streams."""
+        self.episode = episode
         self.generator, self.rng = actor_streams(self.cfg, episode, self.first_agent)
         self.unfiltered = self.rng.random(len(self.ids)) >= filter_probability(self.cfg, episode)
         self.state = self.net.initial_state(len(self.ids))
@@ -99,25 +108,27 @@ class Actor:
 
     def _new_chunk(self) -> None:
         self.chunk: dict[str, list[np.ndarray]] = {key: [] for key in (
-            "obs", "extra", "actions", "logp", "values", "rewards", "train_mask", "sample_mask", "loss_mask",
-            "value_mask", "expert_actions", "imitation_mask")}
+            "observations", "extra_inputs", "actions", "logprobs", "values", "rewards", "train_mask", "sample_mask",
+            "loss_mask", "value_mask", "expert_actions", "imitation_mask")}
         h, c = self.state
         self.h0, self.c0 = h[:, self.learning].numpy().copy(), c[:, self.learning].numpy().copy()
 
     @torch.no_grad()
     def act(self, frame: Frame) -> np.ndarray:
         """Actions for every agent (rows as ``agent_ids``), sampled under the training filter."""
-        obs = torch.from_numpy(np.ascontiguousarray(frame.obs))[None]
-        logits, values, self.state = self.net(obs, self.state, torch.from_numpy(frame.extra)[None])
+        if not len(self):
+            self.chunk_version = self.weights_version
+        observations = torch.from_numpy(np.ascontiguousarray(frame.observations))[None]
+        logits, values, self.state = self.net(observations, self.state, torch.from_numpy(frame.extra_inputs)[None])
         allowed = sampling_mask(self.cfg, frame.train_mask)
         allowed[self.unfiltered] = True
-        actions, logp, value_mask = select_actions(self.cfg, logits[0], frame.train_mask, self.generator, self.rng,
-                                                   sample_mask=allowed)
+        actions, logprobs, value_mask = select_actions(self.cfg, logits[0], frame.train_mask, self.generator,
+                                                       self.rng, sample_mask=allowed)
         free = ~frame.queued
-        self.valid_rate.append(float(frame.valid[free, actions[free]].mean()) if free.any() else 1.0)
-        step = {"obs": frame.obs, "extra": frame.extra, "actions": actions.astype(np.int64), "logp": logp,
-                "values": values[0].numpy(), "train_mask": frame.train_mask, "sample_mask": allowed,
-                "loss_mask": free.astype(np.float32), "value_mask": value_mask}
+        self.valid_rate.append(float(frame.action_mask[free, actions[free]].mean()) if free.any() else 1.0)
+        step = {"observations": frame.observations, "extra_inputs": frame.extra_inputs,
+                "actions": actions.astype(np.int64), "logprobs": logprobs, "values": values[0].numpy(),
+                "train_mask": frame.train_mask, "sample_mask": allowed, "loss_mask": free, "value_mask": value_mask}
         for key, value in step.items():
             self.chunk[key].append(value[self.learning])
         return actions
@@ -125,27 +136,27 @@ class Actor:
     def demonstrate(self, expert_actions: np.ndarray, wanted: np.ndarray) -> None:
         """The demonstrator's actions of the last step and which of them are imitation targets."""
         self.chunk["expert_actions"].append(expert_actions[self.learning].astype(np.int64))
-        self.chunk["imitation_mask"].append(wanted[self.learning].astype(np.float32))
+        self.chunk["imitation_mask"].append(wanted[self.learning].astype(bool))
 
     def reward(self, rewards: np.ndarray) -> None:
         """The rewards of the last step, every agent's (rows as ``agent_ids``), unscaled."""
         self.chunk["rewards"].append(np.asarray(rewards)[self.learning].astype(np.float32))
 
     @torch.no_grad()
-    def rollout(self, obs: np.ndarray, extra: np.ndarray, bootstrap: bool = True) -> dict[str, np.ndarray]:
-        """The chunk's rollout of the learning agents, given what every agent sees after its
-        last step (``obs``, ``extra``: rows as ``agent_ids``), and a new chunk. With
-        ``bootstrap`` it carries the value of that last frame (``next_value``)."""
+    def rollout(self, frame: Frame, done: bool, food: float) -> Rollout:
+        """The chunk's :class:`Rollout` of the learning agents, given what every agent sees after
+        its last step (``frame``; its bootstrap value), whether that ends the episode and the food
+        deposited during the chunk; and a new chunk."""
         rows = self.learning
         if len(self.chunk["rewards"]) != len(self) or not len(self):
             raise RuntimeError("a rollout needs at least one step, each with its rewards")
-        self.chunk["obs"].append(obs[rows])  # the last frame, for bootstrapping
-        self.chunk["extra"].append(extra[rows])
-        chunk = {key: np.stack(values) for key, values in self.chunk.items() if values}
-        chunk.update(agent_ids=self.ids[rows], h0=self.h0, c0=self.c0)
-        if bootstrap:
-            _, next_value, _ = self.net(torch.from_numpy(np.ascontiguousarray(obs))[None], self.state,
-                                        torch.from_numpy(extra)[None])
-            chunk["next_value"] = next_value[0].numpy()[rows]
+        self.chunk["observations"].append(frame.observations[rows])  # the last frame, for bootstrapping
+        self.chunk["extra_inputs"].append(frame.extra_inputs[rows])
+        _, next_value, _ = self.net(torch.from_numpy(np.ascontiguousarray(frame.observations))[None], self.state,
+                                    torch.from_numpy(frame.extra_inputs)[None])
+        arrays = {key: np.stack(values) for key, values in self.chunk.items() if values}
+        rollout = Rollout(weights_version=self.chunk_version, episode=self.episode, done=done, food=float(food),
+                          agent_ids=self.ids[rows], next_value=next_value[0].numpy()[rows], h0=self.h0, c0=self.c0,
+                          **arrays)
         self._new_chunk()
-        return chunk
+        return rollout

@@ -13,6 +13,7 @@ import torch.nn.functional as F
 from formic_agent.network import NETWORK_PRESETS, ForMICNet
 
 from .config import TrainConfig
+from .rollout import Rollout
 
 
 def training_network(cfg: TrainConfig) -> ForMICNet:
@@ -22,10 +23,10 @@ def training_network(cfg: TrainConfig) -> ForMICNet:
     return ForMICNet(config).to(memory_format=torch.channels_last)
 
 
-def sampling_mask(cfg: TrainConfig, train_mask):
-    """Actions the behaviour policy may sample in "mask" mode (numpy or torch): a new array,
-    which the actor widens for unfiltered agents without touching the valid-action target."""
-    allowed = train_mask.clone() if isinstance(train_mask, torch.Tensor) else train_mask.copy()
+def sampling_mask(cfg: TrainConfig, train_mask: np.ndarray) -> np.ndarray:
+    """Actions the behaviour policy may sample in "mask" mode: a new array, which the actor
+    widens for unfiltered agents without touching the valid-action target."""
+    allowed = train_mask.copy()
     if not cfg.mask_join:
         allowed[..., 4] = True
     return allowed
@@ -39,11 +40,10 @@ def masked_mean(x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
 def policy_losses(net: ForMICNet, cfg: TrainConfig,
                   batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
     """All loss terms over a batch of agent sequences (T, B, ...) from their initial state."""
-    logits, values, _ = net(batch["obs"], (batch["h0"], batch["c0"]), batch["extra"])
+    logits, values, _ = net(batch["observations"], (batch["h0"], batch["c0"]), batch["extra_inputs"])
     logits_for_pi = logits
     if cfg.action_filter == "mask":
-        allowed = batch["sample_mask"] if "sample_mask" in batch else sampling_mask(cfg, batch["train_mask"])
-        logits_for_pi = logits.masked_fill(~allowed, -1e9)
+        logits_for_pi = logits.masked_fill(~batch["sample_mask"], -1e9)
     log_probs = torch.log_softmax(logits_for_pi, dim=-1)
     logp = log_probs.gather(-1, batch["actions"].unsqueeze(-1)).squeeze(-1)
     entropy = -(log_probs.exp() * log_probs).sum(-1)
@@ -51,7 +51,7 @@ def policy_losses(net: ForMICNet, cfg: TrainConfig,
     value_mask = batch["value_mask"] if cfg.queued_value_loss else loss_mask * batch["value_mask"]
     adv = batch["advantages"]
     if cfg.clip > 0:
-        ratio = torch.exp(logp - batch["logp"])
+        ratio = torch.exp(logp - batch["logprobs"])
         pg = -torch.min(ratio * adv, torch.clamp(ratio, 1 - cfg.clip, 1 + cfg.clip) * adv)
     else:
         pg = -logp * adv
@@ -109,27 +109,29 @@ def advantages_and_returns(cfg: TrainConfig, rewards, values, next_value) -> tup
     return adv, adv + values
 
 
-def update_tensors(cfg: TrainConfig, data: dict[str, np.ndarray]) -> dict[str, torch.Tensor]:
-    """A rollout chunk (``data``, time-major (T, B, ...)) as the loss reads it, with its
-    (normalised) advantages and returns."""
-    adv, returns = advantages_and_returns(cfg, data["rewards"], data["values"], data["next_value"])
+def update_tensors(cfg: TrainConfig, rollout: Rollout) -> dict[str, torch.Tensor]:
+    """A rollout as the loss reads it: its T acting frames, masks as floats, and the
+    (normalised) advantages and returns of its scaled rewards."""
+    steps = rollout.steps
+    rewards = scale_rewards(rollout.rewards, cfg.reward_scale)
+    adv, returns = advantages_and_returns(cfg, rewards, rollout.values, rollout.next_value)
     tensors = {
-        "obs": torch.from_numpy(data["obs"]),
-        "extra": torch.from_numpy(data["extra"]),
-        "actions": torch.from_numpy(data["actions"]).long(),
-        "logp": torch.from_numpy(data["logp"]),
-        "train_mask": torch.from_numpy(data["train_mask"]),
-        **({"sample_mask": torch.from_numpy(data["sample_mask"])} if "sample_mask" in data else {}),
-        "any_valid": torch.from_numpy(data["train_mask"][..., :4].any(-1).astype(np.float32)),
-        "loss_mask": torch.from_numpy(data["loss_mask"]).float(),
-        "value_mask": torch.from_numpy(data["value_mask"]).float(),
+        "observations": torch.from_numpy(rollout.observations[:steps]),
+        "extra_inputs": torch.from_numpy(rollout.extra_inputs[:steps]),
+        "actions": torch.from_numpy(rollout.actions).long(),
+        "logprobs": torch.from_numpy(rollout.logprobs),
+        "train_mask": torch.from_numpy(rollout.train_mask),
+        "sample_mask": torch.from_numpy(rollout.sample_mask),
+        "any_valid": torch.from_numpy(rollout.train_mask[..., :4].any(-1).astype(np.float32)),
+        "loss_mask": torch.from_numpy(rollout.loss_mask).float(),
+        "value_mask": torch.from_numpy(rollout.value_mask).float(),
         "returns": torch.from_numpy(returns.astype(np.float32)),
-        "h0": torch.from_numpy(data["h0"]),
-        "c0": torch.from_numpy(data["c0"]),
+        "h0": torch.from_numpy(rollout.h0),
+        "c0": torch.from_numpy(rollout.c0),
     }
-    if "expert_actions" in data:
-        tensors["expert_actions"] = torch.from_numpy(data["expert_actions"]).long()
-        tensors["imitation_mask"] = torch.from_numpy(data["imitation_mask"]).float()
+    if rollout.expert_actions is not None:
+        tensors["expert_actions"] = torch.from_numpy(rollout.expert_actions).long()
+        tensors["imitation_mask"] = torch.from_numpy(rollout.imitation_mask).float()
     adv_t = torch.from_numpy(adv.astype(np.float32))
     if cfg.normalize_advantages:
         m = tensors["loss_mask"]
@@ -139,12 +141,12 @@ def update_tensors(cfg: TrainConfig, data: dict[str, np.ndarray]) -> dict[str, t
     return tensors
 
 
-def update(net: ForMICNet, optimizer: torch.optim.Optimizer, cfg: TrainConfig, data: dict[str, np.ndarray],
+def update(net: ForMICNet, optimizer: torch.optim.Optimizer, cfg: TrainConfig, rollout: Rollout,
            rng: np.random.Generator) -> dict[str, float]:
-    """One update from a rollout chunk: the same function serves the in-process trainer and
-    the ROS trainer node. ``data`` arrays are time-major (T, B, ...)."""
-    tensors = update_tensors(cfg, data)
-    n_seq = tensors["obs"].shape[1]
+    """One update from a rollout: the same function serves the in-process trainer and the ROS
+    trainer node. ``rng`` permutes the agent sequences into minibatches."""
+    tensors = update_tensors(cfg, rollout)
+    n_seq = tensors["observations"].shape[1]
     stats: dict[str, list[float]] = {}
     for _ in range(cfg.epochs):
         order = rng.permutation(n_seq)
@@ -182,16 +184,3 @@ def scale_rewards(rewards: np.ndarray, scale: float) -> np.ndarray:
     """The reward scaling, in float64 from the float32 rewards a rollout carries."""
     return (np.asarray(rewards, dtype=np.float32).astype(np.float64) * scale).astype(np.float32)
 
-
-UPDATE_KEYS = ("actions", "logp", "values", "train_mask", "sample_mask", "loss_mask", "value_mask", "h0", "c0",
-               "next_value", "expert_actions", "imitation_mask")
-
-
-def update_data(cfg: TrainConfig, rollout: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """What :func:`update` takes, from a rollout (T+1 observation frames, T of the rest, the
-    behaviour policy's log-probabilities, values, bootstrap value and initial LSTM state)."""
-    steps = rollout["actions"].shape[0]
-    data = {"obs": rollout["obs"][:steps], "extra": rollout["extra"][:steps],
-            "rewards": scale_rewards(rollout["rewards"], cfg.reward_scale)}
-    data.update({key: rollout[key] for key in UPDATE_KEYS if key in rollout})
-    return data

@@ -16,8 +16,9 @@ import torch
 
 from formic_agent.checkpoint import CheckpointError, initialise_from, load_network, read_checkpoint, save_checkpoint
 
-from .algorithm import make_optimizer, set_learning_rate, training_network, update, update_data
+from .algorithm import make_optimizer, set_learning_rate, training_network, update
 from .config import TrainConfig, plain
+from .rollout import Rollout
 
 # settings a run may change when it resumes
 RESUMABLE = frozenset({"total_episodes", "threads", "checkpoint_every", "init_weights", "weight_average"})
@@ -93,12 +94,12 @@ class Learner:
         self.log(f"resumed from {path}: episode {self.episode}, update {self.updates}")
         return payload.get("averaged_state_dict")
 
-    def learn(self, rollout: dict[str, np.ndarray], env_steps: int | None = None) -> dict[str, float]:
+    def learn(self, rollout: Rollout, env_steps: int | None = None) -> dict[str, float]:
         """One update from one rollout; ``env_steps``: the agent-steps it stands for (default:
         its learning agents')."""
         set_learning_rate(self.optimizer, self.cfg, self.updates)
         rng = learner_stream(self.cfg, self.updates)  # per update: a resumed run permutes as an uninterrupted one
-        stats = update(self.net, self.optimizer, self.cfg, update_data(self.cfg, rollout), rng)
+        stats = update(self.net, self.optimizer, self.cfg, rollout, rng)
         if self.averaged is not None:
             with torch.no_grad():
                 weights = self.net.state_dict()
@@ -108,7 +109,7 @@ class Learner:
                     else:
                         value.copy_(weights[name])
         self.updates += 1
-        self.env_steps += int(rollout["actions"].size if env_steps is None else env_steps)
+        self.env_steps += int(rollout.actions.size if env_steps is None else env_steps)
         return stats
 
     def end_episodes(self, episodes: int, stats: dict[str, float], seconds: float = 0.0,

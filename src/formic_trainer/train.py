@@ -1,7 +1,8 @@
 """ForMIC training, top to bottom: worlds -> actor -> world.step -> learner.
 
 The meta-agent worlds step together, one :class:`Actor` acts for all their agents and every
-``rollout_steps`` steps the :class:`Learner` updates the network they share from its rollout.
+``rollout_steps`` steps the :class:`Learner` updates the network they share from the actor's
+:class:`Rollout`.
 ``formic train-ros`` runs the same actor in a ROS learning host and the same learner in the
 trainer node (:mod:`formic_ros.learning_host`, :mod:`formic_ros.trainer_node`).
 """
@@ -19,6 +20,7 @@ from formic_agent.checkpoint import load_network, save_checkpoint
 from .actor import Actor, filter_probability
 from .config import TrainConfig
 from .learner import Learner
+from .rollout import Rollout
 from .worlds import MetaAgents
 
 
@@ -43,9 +45,10 @@ class Trainer:
         started, cpu_started, episode = time.time(), time.process_time(), learner.episode
         stats: dict[str, list[float]] = {}
 
-        def learn(rollout: dict[str, np.ndarray], env_steps: int) -> None:
+        def learn(rollout: Rollout, env_steps: int) -> None:
             for key, value in learner.learn(rollout, env_steps).items():
                 stats.setdefault(key, []).append(value)
+            actor.weights_version = learner.version
 
         food = play_episode_set(cfg, envs, actor, episode, learn)
         result = {key: float(np.mean(values)) for key, values in stats.items()}
@@ -81,24 +84,26 @@ class Trainer:
 
 
 def play_episode_set(cfg: TrainConfig, envs: MetaAgents, actor: Actor, episode: int,
-                     on_rollout: Callable[[dict[str, np.ndarray], int], None]) -> np.ndarray:
-    """Every world plays episode ``episode``; each rollout chunk goes to ``on_rollout`` with the
+                     on_rollout: Callable[[Rollout, int], None]) -> np.ndarray:
+    """Every world plays episode ``episode``; each rollout goes to ``on_rollout`` with the
     agent-steps it stands for. Returns the food each world deposited."""
     envs.reset(episode)
     actor.start_episode(episode)
     food = np.zeros(len(envs.worlds))
+    food_before = 0.0  # at the chunk's start
     frame = envs.observe()
     for step in range(cfg.episode_steps):
         actions = actor.act(frame)
         if cfg.imitate:
             actor.demonstrate(*envs.demonstrations())
-        rewards, step_food = envs.step(actions)
-        food += step_food
-        actor.reward(rewards)
+        food += envs.step(actions)
         frame = envs.observe()
-        if len(actor) == cfg.rollout_steps or step + 1 == cfg.episode_steps:
+        actor.reward(frame.rewards)
+        done = step + 1 == cfg.episode_steps
+        if len(actor) == cfg.rollout_steps or done:
             env_steps = len(actor) * envs.n_agents
-            on_rollout(actor.rollout(frame.obs, frame.extra), env_steps)
+            on_rollout(actor.rollout(frame, done, food.sum() - food_before), env_steps)
+            food_before = food.sum()
     return food
 
 

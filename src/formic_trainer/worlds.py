@@ -1,5 +1,6 @@
-"""The training worlds: scenarios per episode set (also the ROS world node's), and the
-meta-agent worlds stepped together with their team rewards and demonstrators."""
+"""The training worlds: scenarios per episode set (also the ROS world node's), the frames an
+actor reads (:func:`make_frame`, also the ROS learning host's), and the meta-agent worlds
+stepped together with their demonstrators."""
 
 from __future__ import annotations
 
@@ -18,13 +19,27 @@ from .config import TrainConfig, reward_config
 
 class Frame(NamedTuple):
     """What agents (rows) see at one step: observations, extra inputs (odometry, own action
-    feedback), valid actions (the environment's, the training filter's), queued or not."""
+    feedback), valid actions (the environment's, the training filter's), queued or not, and the
+    rewards of the step that led here (mixed with the team mean when ``team_reward`` > 0)."""
 
-    obs: np.ndarray
-    extra: np.ndarray
-    valid: np.ndarray
+    observations: np.ndarray
+    extra_inputs: np.ndarray
+    action_mask: np.ndarray
     train_mask: np.ndarray
     queued: np.ndarray
+    rewards: np.ndarray
+
+
+def make_frame(cfg: TrainConfig, batch: AgentBatch, train_mask: np.ndarray, feedback: ActionFeedback,
+               team_rewards: np.ndarray, rows=slice(None)) -> Frame:
+    """The frame of ``batch``'s agents, whose last actions ``feedback`` knows. ``team_rewards``:
+    every agent's of their world (the team mean needs them all), ``rows``: the batch's among them.
+    The one builder of the in-process training worlds and the ROS learning host."""
+    extra = extra_inputs(nest_features(batch.positions, batch.loads, batch.world_shape),
+                         feedback.features(batch.agent_ids, batch.positions, batch.queued))
+    rewards = np.asarray(share_rewards(team_rewards, cfg.team_reward))[rows].astype(np.float32)
+    return Frame(batch.observations, extra, batch.action_mask, train_mask, np.asarray(batch.queued, dtype=bool),
+                 rewards)
 
 
 def scenario_rng(cfg: TrainConfig, episode: int) -> np.random.Generator:
@@ -58,16 +73,12 @@ def sample_scenarios(cfg: TrainConfig, rng: np.random.Generator,
 
 
 def share_rewards(rewards: np.ndarray, fraction: float) -> np.ndarray:
-    """Mix one world's per-agent rewards with their mean (``team_reward``).
-
-    Mixed in float32, as the ROS observation messages carry rewards, and returned as float64
-    for the float64 reward scaling both trainers share, so distributed training stays exact.
-    """
+    """Mix one world's per-agent rewards with their mean (``team_reward``), in float32 as the ROS
+    observation messages carry rewards, so distributed training mixes exactly the same."""
     if fraction == 0.0:
         return rewards
     team = np.asarray(rewards, dtype=np.float32)
-    mixed = np.float32(1.0 - fraction) * team + np.float32(fraction) * team.mean(dtype=np.float32)
-    return mixed.astype(np.float64)
+    return np.float32(1.0 - fraction) * team + np.float32(fraction) * team.mean(dtype=np.float32)
 
 
 class MetaAgents:
@@ -79,7 +90,8 @@ class MetaAgents:
         self.offsets = np.cumsum([0, *cfg.teams])
         self.n_agents = int(self.offsets[-1])
         self.experts: list = []  # one demonstrator per world (cfg.imitate)
-        self.feedback = ActionFeedback(self.n_agents)
+        self.feedback = [ActionFeedback(team) for team in cfg.teams]
+        self.rewards: list[np.ndarray] = []  # each world's last step's (zeros at an episode's start)
         self._seen: list[tuple[np.ndarray, np.ndarray]] = []  # each world's last (observations, valid)
 
     def reset(self, episode: int) -> None:
@@ -87,23 +99,21 @@ class MetaAgents:
         draws what an uninterrupted one would); curriculum intensities from the global episode."""
         scenarios, self.highway, self.deposit = sample_scenarios(self.cfg, scenario_rng(self.cfg, episode), episode)
         self.worlds = [World(scenario) for scenario in scenarios]
-        self.feedback.reset(self.n_agents)
+        for feedback, team in zip(self.feedback, self.cfg.teams):
+            feedback.reset(team)
+        self.rewards = [np.zeros(team) for team in self.cfg.teams]
         if self.cfg.imitate:
             self.experts = [make_policy(self.cfg.imitate) for _ in scenarios]
             for expert, scenario in zip(self.experts, scenarios):
                 expert.reset(scenario.config.n_agents, scenario.seed)
 
     def observe(self) -> Frame:
-        """What every agent of every world sees now."""
+        """What every agent of every world sees now (rows: team-wide ids)."""
         self._seen = [(w.observer.observe(), w.action_mask()) for w in self.worlds]
-        obs, valid = zip(*self._seen)
-        nest = np.concatenate([nest_features(w.pos, w.loads, w.grid.shape) for w in self.worlds])
-        positions, queued = self._positions()
-        return Frame(np.concatenate(obs),
-                     extra_inputs(nest, self.feedback.features(np.arange(self.n_agents), positions, queued)),
-                     np.concatenate(valid),
-                     np.concatenate([w.training_action_mask(v) for w, v in zip(self.worlds, valid)]),
-                     np.concatenate([w.queued for w in self.worlds]))
+        frames = [make_frame(self.cfg, AgentBatch.from_world(w, observations=obs, action_mask=valid),
+                             w.training_action_mask(valid), feedback, rewards)
+                  for w, (obs, valid), feedback, rewards in zip(self.worlds, self._seen, self.feedback, self.rewards)]
+        return Frame(*map(np.concatenate, zip(*frames)))
 
     def demonstrations(self) -> tuple[np.ndarray, np.ndarray]:
         """(expert action, whether it is an imitation target) for every agent of every world,
@@ -116,15 +126,13 @@ class MetaAgents:
             wanted.append(near & who & ~w.queued)
         return np.concatenate(targets), np.concatenate(wanted)
 
-    def _positions(self) -> tuple[np.ndarray, np.ndarray]:
-        """Every agent's position and queue state (rows as in the frames)."""
-        return np.concatenate([w.pos for w in self.worlds]), np.concatenate([w.queued for w in self.worlds])
-
-    def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        self.feedback.record(np.arange(self.n_agents), actions, *self._positions())
-        rewards, food = [], []
-        for w, lo, hi in zip(self.worlds, self.offsets[:-1], self.offsets[1:]):
+    def step(self, actions: np.ndarray) -> np.ndarray:
+        """Every world steps with its agents' ``actions``; returns the food each deposited (the
+        rewards come with the next frame)."""
+        food = []
+        for i, (w, lo, hi) in enumerate(zip(self.worlds, self.offsets[:-1], self.offsets[1:])):
+            self.feedback[i].record(np.arange(hi - lo), actions[lo:hi], w.pos, w.queued)
             result = w.step(actions[lo:hi])
-            rewards.append(share_rewards(result.rewards, self.cfg.team_reward))
+            self.rewards[i] = result.rewards
             food.append(result.food)
-        return np.concatenate(rewards), np.array(food)
+        return np.array(food)
