@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """Before/after speed of two revisions: `formic bench world`, `bench ros` and `bench policy` at
-128 agents, run in turn (before, after, before, ...) so that a drifting machine hits both alike,
+128 agents, and training on the paper recipe's workload (benchmarks/training_speed.py), run in turn (before, after, before, ...) so that a drifting machine hits both alike,
 and the median of each figure with the after/before ratio. Run it on a quiet machine.
 
     .venv/bin/python benchmarks/compare_revisions.py 2fc1868 --rounds 3
@@ -28,6 +28,9 @@ BENCHES = {  # name: (formic arguments, {figure: path into the JSON})
     "policy": (["bench", "policy", "--batch", "128", "--json"], {
         "inference agent-steps/s": ("inference_agent_steps_per_s",),
         "training agent-steps/s": ("training_agent_steps_per_s",)}),
+    # the paper recipe's workload (benchmarks/training_speed.py, this tree's recipe for both sides)
+    "training": ([str(ROOT / "benchmarks" / "training_speed.py"), "--threads", "2", "--json"], {
+        "recipe training agent-steps/s": ("agent_steps_per_s",)}),
 }
 
 
@@ -35,8 +38,12 @@ def run_bench(src: Path, args: list[str], dds_profile: str | None) -> dict:
     env = {**os.environ, "PYTHONPATH": str(src)}
     if dds_profile:
         env["FASTRTPS_DEFAULT_PROFILES_FILE"] = dds_profile
-    done = subprocess.run([sys.executable, "-m", "formic_cli.main", *args], env=env, capture_output=True,
-                          text=True, timeout=900, check=True)
+    if args[0].endswith(".py"):  # a benchmark script of this tree, timing ``src`` (its --src)
+        command = [sys.executable, *args, "--src", str(src)]
+        env["PYTHONPATH"] = str(ROOT / "src")
+    else:
+        command = [sys.executable, "-m", "formic_cli.main", *args]
+    done = subprocess.run(command, env=env, capture_output=True, text=True, timeout=900, check=True)
     return json.loads([line for line in done.stdout.splitlines() if line.startswith("{")][-1])
 
 

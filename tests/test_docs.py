@@ -266,6 +266,8 @@ def check_shell_block(block: Block, tmp: Path) -> None:
         head, args = argv[0], argv[1:]
         if head == "export":
             assert args and all(ASSIGNMENT.match(a) for a in args), f"{where}: export needs NAME=value"
+        elif head == "wait":  # waits for the block's background jobs: nothing to check
+            assert not args, f"{where}: wait takes no job ids here"
         elif head == "cd":
             cwd = (cwd / args[0]).resolve()
             assert cwd.is_dir(), f"{where}: no such directory {args[0]}"
