@@ -205,5 +205,7 @@ def verify_recording(path: str | os.PathLike) -> VerifyReport:
         _check_end(report, where, episode, world, todo, recording.cut_short)
     report.topics_checked = len(topics)
     if report.ok and report.states_checked == 0:
-        report.fail("no recorded state could be checked")
+        report.fail("no recorded state could be checked" + (
+            ": the world never stepped (no applied actions; did any agent answer step 0?)"
+            if not any(episode.actions for episode in episodes) else ""))
     return report

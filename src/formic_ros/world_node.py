@@ -29,7 +29,7 @@ from formic_runtime.episode import EpisodeStats
 import formic_topics as topics
 from formic_world import Scenario, StepResult, World
 
-from .graph import RecorderReports, recorders_present, wait_for_recorders
+from .graph import RecorderReports, recorders_present, settle_discovery, wait_for_recorders
 from . import convert, qos, viewer_msgs
 from .lockstep import Lockstep, RateLimitedLog
 from .ownership import Ownership, batch_of
@@ -95,6 +95,7 @@ class WorldNode(Node):
                                    external=options.external, drivers=options.drivers,
                                    recorder_reports=self.recorder_reports)
         self._listening, self._listening_at = [], -np.inf
+        self._settled = False  # discovery has settled once (before the first episode)
         self.view = None  # the live view, fed after each step (formic_view; no ROS involved)
         if options.view_port is not None:
             from formic_view import LiveView, announcement
@@ -185,6 +186,9 @@ class WorldNode(Node):
         publishers = {topics.STATE: self.state_pub, topics.APPLIED_ACTIONS: self.applied_pub,
                       topics.OBSERVATIONS: self.observations_pub, topics.SUMMARY: self.summary_pub,
                       topics.SCENARIO: self.scenario_pub, topics.SCORE: self.score_pub}
+        if not self._settled:  # recorders already running are discovered before they are counted
+            settle_discovery(self, executor)
+            self._settled = True
         self.ownership.expect_recorders(max(self.options.recorders, recorders_present(self)))  # drivers wait too
         deadline = time.monotonic() + self.options.startup_timeout_s
         while missing := [n for n in self.options.require_subscribers if publishers[n].get_subscription_count() == 0]:
@@ -197,9 +201,11 @@ class WorldNode(Node):
         self.ownership.expect_recorders(expected)
         publishers = [self.scenario_pub, self.summary_pub, self.state_pub, self.applied_pub, self.observations_pub,
                       self.score_pub, self.clock_pub, self.map_pub, self.markers_pub, *self.agent_obs_pubs]
-        if expected and not wait_for_recorders(self, executor, publishers, expected, self.recorder_reports,
-                                                   self.options.startup_timeout_s):
-            self.get_logger().warning("the recorder has not matched every topic; starting anyway")
+        if expected:
+            self.get_logger().info(f"waiting for {expected} recorder(s) to match every topic")
+            if not wait_for_recorders(self, executor, publishers, expected, self.recorder_reports,
+                                      self.options.startup_timeout_s):
+                self.get_logger().warning("the recorder has not matched every topic; starting anyway")
         self._listening_at = -np.inf  # re-read the per-agent listeners: the recorder is one
 
     def _linger(self, executor) -> None:
