@@ -141,12 +141,14 @@ def test_the_paper_recipe_validates_on_seeds_no_test_set_uses():
     assert not validation & (generated | set(range(50)))
 
 
-@pytest.mark.parametrize("index, lineage", [(2, "paper-feedback-nonlearning"), (3, "paper-novalid"),
-                                            (4, "paper-novalid128")])
-def test_the_paper_recipes_last_stages_train_as_the_lineage_did(index, lineage):
+@pytest.mark.parametrize("stage, lineage", [("nonlearning", "paper-feedback-nonlearning"),
+                                            ("novalid", "paper-novalid"), ("novalid128", "paper-novalid128")])
+def test_the_paper_recipes_last_stages_train_as_the_lineage_did(stage, lineage):
     """Stages 4-6 of models/formic_paper.md, setting for setting (the highway schedule, unused
-    without the curriculum, is inherited from the recipe's first stage)."""
-    ours = stage_config(load_recipe("paper"), index, Path("run"), seed=1).to_dict()
+    without the curriculum, is inherited from the recipe's reference stage)."""
+    recipe = load_recipe("paper")
+    index = [s.name for s in recipe.stages].index(stage)
+    ours = stage_config(recipe, index, Path("run"), seed=1).to_dict()
     theirs = load_train_config(ROOT / "models" / "training" / lineage / "config.json").to_dict()
     differ = {key for key in ours if json.dumps(ours[key]) != json.dumps(theirs[key])}
     assert differ == {"seed", "init_weights", "total_episodes", "curriculum_start", "curriculum_end"}
