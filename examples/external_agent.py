@@ -37,6 +37,7 @@ def main() -> None:
 
     import rclpy
     from formic_interfaces.msg import AgentAction, AgentObservation
+    from rclpy.duration import Duration
     from rclpy.node import Node
     from rclpy.qos import DurabilityPolicy, QoSProfile
     from std_msgs.msg import String
@@ -98,6 +99,7 @@ def main() -> None:
     try:
         while rclpy.ok() and not node.done:
             rclpy.spin_once(node, timeout_sec=0.2)
+        node.publisher.wait_for_all_acked(Duration(seconds=5))  # a recorder that lags still gets the last actions
     except KeyboardInterrupt:
         pass
     finally:
