@@ -20,13 +20,16 @@ from formic_world import REWARD_PRESETS, RewardConfig
 
 @dataclass
 class TrainConfig:
+    """Every training setting, one line of help each; why the non-paper ones exist and what
+    they measured: docs/training.md, "The settings"."""
+
     preset: Literal["paper", "cpu"] = "paper"
     network: str = "paper"  # a NETWORK_PRESETS name
     seed: int = 0
-    # Meta-agent environments: team size, learning agents (-1 = all), world side range.
-    teams: tuple[int, ...] = (16, 24, 32, 48)
-    learning_agents: int = 8
-    world_sizes: tuple[tuple[int, int], ...] = ((20, 96), (20, 96), (40, 96), (64, 128))
+    # Meta-agent environments
+    teams: tuple[int, ...] = (16, 24, 32, 48)  # agents in each world
+    learning_agents: int = 8  # the first N agents of each world learn, the rest act with the policy (-1: all)
+    world_sizes: tuple[tuple[int, int], ...] = ((20, 96), (20, 96), (40, 96), (64, 128))  # side range per world
     obstacle_range: tuple[float, float] = (0.0, 0.05)
     episode_steps: int = 512
     view_size: int = 11
@@ -38,88 +41,35 @@ class TrainConfig:
     gamma: float = 0.95
     gae_lambda: float = 1.0  # 1.0 = n-step bootstrapped returns (the paper)
     value_coef: float = 0.5
-    # Train the critic on queued steps too (beyond the paper, which masks queued steps out of
-    # every loss term). With the paper's lambda=1 returns the values inside a queue never enter
-    # an advantage; with GAE (lambda<1, the cpu preset) every queued step's value does, with
-    # weight gamma*(1-lambda), and an untrained critic reads ~0 there (measured at 128 agents:
-    # -0.01 against a true return of +0.38), so a JOIN's advantage loses part of the deposit
-    # that follows it. Fixed, it did not change the 128-agent food (models/formic_paper.md). The
-    # policy and valid-action terms stay masked on queued steps either way.
-    queued_value_loss: bool = False
+    queued_value_loss: bool = False  # train the critic on queued steps too (beyond the paper)
     entropy_coef: float = 0.01
     valid_coef: float = 0.5
-    # Valid-action loss on the JOIN logit too ("all", the paper) or on the four moves only
-    # ("moves"): JOIN is valid on ~4% of steps, and fitting that base rate through the shared
-    # logits suppresses JOIN before the network can recognise a queue entry (measured: food
-    # collapses), while the policy gradient alone teaches when to JOIN.
-    valid_actions: Literal["all", "moves"] = "all"
-    # "bce": the paper's valid-action predictor (sigmoid of the logits vs the mask). "mass":
-    # -log of the probability the policy's move distribution puts on valid moves. With masked
-    # sampling the policy gradient never touches invalid logits, and BCE (a per-action
-    # threshold at 0) left agents unable to act unmasked (measured: 59 food with the filter,
-    # 3 without); "mass" trains exactly the unmasked softmax agents use at test time.
-    valid_loss: Literal["bce", "mass"] = "bce"
-    # The paper's valid-action BCE on the JOIN logit alone, beside valid_loss (beyond the cpu
-    # preset, which leaves JOIN to the policy gradient: see valid_actions). For a trained
-    # policy: at 128 agents the shipped model JOINs on 44% of the steps where a loaded agent
-    # may (91% at 16 agents), and a cache-entry mark in the observation is not a valid JOIN on
-    # a quarter of them (the entry cell is taken). Measured: agents then queue less, not more
-    # (JOIN is valid on a few percent of steps, and the base rate wins). 0 = off.
-    valid_join_coef: float = 0.0
-    # With action_filter="mask": also mask JOIN when invalid (True), or let agents try JOIN
-    # anywhere as at test time, where a JOIN with no queue in reach wastes the step (False).
-    mask_join: bool = True
-    # Filter annealing (beyond the paper; "mask" mode): each learning agent-episode is filtered
-    # with a probability falling linearly from 1 at filter_anneal_start to filter_final at
-    # filter_anneal_end. Unfiltered agents act as at test time while the valid-action loss still
-    # teaches the filter in the states they reach, so they learn to recover from their own
-    # mistakes (an always-filtered policy never visits them: measured 59 food with the filter,
-    # 3 without).
-    filter_anneal_start: int = 0
-    filter_anneal_end: int = 0
+    valid_actions: Literal["all", "moves"] = "all"  # the valid-action loss on every logit (paper) or the moves only
+    valid_loss: Literal["bce", "mass"] = "bce"  # the paper's sigmoid predictor, or -log P(valid move)
+    valid_join_coef: float = 0.0  # the paper's BCE on the JOIN logit alone, beside valid_loss (0 = off)
+    mask_join: bool = True  # with action_filter="mask": also mask an invalid JOIN
+    filter_anneal_start: int = 0  # filter annealing (beyond the paper): P(filtered) falls linearly from 1 ...
+    filter_anneal_end: int = 0  # ... at filter_anneal_start to filter_final at filter_anneal_end
     filter_final: float = 1.0
     init_weights: str = ""  # start the network from this checkpoint (warm start / fine-tune)
-    # A moving average of the weights kept beside them (beyond the paper): after each update
-    # averaged = d * averaged + (1 - d) * weights, d = weight_average (0 = off; 0.99 spans about
-    # the last 100 updates). Written at every checkpoint as ``averaged.pt`` (a model for --model)
-    # and carried in ``latest.pt``. At 128 agents single checkpoints eight updates apart swing
-    # between 316 and 742 food (models/formic_paper.md), so the policy a run ends with is a lottery.
-    weight_average: float = 0.0
+    weight_average: float = 0.0  # decay of a moving average of the weights, written as averaged.pt (0 = off)
     optimizer: Literal["nadam", "adam"] = "nadam"
     lr: float = 5e-6
-    # Learning-rate warm-up over the first N updates of a run (beyond the paper). A fine-tune
-    # from bare weights (init_weights) starts Adam with empty moments, whose first steps move
-    # every weight by ~lr at once: measured, the policy's entropy rose from 0.45 to 0.8 within
-    # one episode set of a crowd fine-tune. 0 = off.
-    lr_warmup: int = 0
+    lr_warmup: int = 0  # ramp the learning rate up over the first N updates of a run (0 = off)
     max_grad_norm: float = 10.0
     loss_reduction: Literal["sum", "mean"] = "sum"  # "sum": gradients of all learning agents are summed (paper)
     normalize_advantages: bool = False
     reward_scale: float = 1.0
-    # Team reward (beyond the paper): each agent's reward becomes (1-f)*own + f*(its world's team
-    # mean). With purely individual rewards, loaded agents crowding the nest cost only the empty
-    # agents they trap; sharing makes the team's throughput part of every agent's return.
-    team_reward: float = 0.0
-    # Imitation (beyond the paper: warm-starting from a demonstrator, DAgger style). The named
-    # baseline policy runs beside the learners on the very observations they see, without
-    # acting; its action is a cross-entropy target (weight imitation_coef) for the learners'
-    # free agents that imitation_agents names ("loaded" or "all") within imitation_radius
-    # cells (Chebyshev) of the nest centre (0: anywhere). Meant for the crowded nest, where
-    # C-SAF-11's orbit keeps 128 agents flowing. "" = off.
-    imitate: str = ""
+    team_reward: float = 0.0  # each reward becomes (1-f)*own + f*(its world's mean) (beyond the paper)
+    imitate: str = ""  # a baseline whose actions are imitation targets (DAgger style; "" = off)
     imitation_coef: float = 0.0
-    imitation_agents: Literal["loaded", "all"] = "loaded"
-    imitation_radius: int = 0
+    imitation_agents: Literal["loaded", "all"] = "loaded"  # whose actions are imitation targets
+    imitation_radius: int = 0  # ... within this many cells of the nest centre (0: anywhere)
     # Techniques (the paper's ablation switches)
     action_filter: Literal["replace", "mask", "none"] = "replace"  # replace (paper); mask: mask invalid logits
     training_filter: Literal["paper", "reference"] = "paper"  # carrying agents' filter (SPEC §4)
     rewards: Literal["paper", "reference"] = "paper"  # a formic_world.REWARD_PRESETS name (SPEC §4)
-    # Single rewards replacing the preset's (beyond the paper): "deposit=10,blocked=-0.5", fields
-    # of formic_world.RewardConfig. Measured (models/formic_paper.md): with the paper's table loaded
-    # agents queue up to twice as much as with the reference code's, but agents that have unloaded
-    # hold the docks longer (a blocked step costs -0.05 against -0.5); the deposit's pay alone
-    # (deposit=10 on the reference rewards) does not make them queue more.
-    reward_overrides: str = ""
+    reward_overrides: str = ""  # single rewards over the preset's, e.g. "deposit=10,blocked=-0.5"
     pheromones: bool = True  # False: train (and test) without pheromones
     curriculum: bool = True
     curriculum_start: int = 5000
