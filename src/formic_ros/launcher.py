@@ -108,8 +108,8 @@ def launch(opts: RunOptions) -> dict:
         scenario.save(scenario_file)
         world_out = run.stdout("world")
         specs = driver_specs(opts, team)
-        world = run.start("world", world_spec(opts, scenario_file, label, [s["kwargs"].get("name", s["node"]) for s in specs.values()]),
-                          world_out)
+        driver_nodes = [spec["kwargs"].get("name", spec["node"]) for spec in specs.values()]  # the planner: "planner"
+        world = run.start("world", world_spec(opts, scenario_file, label, driver_nodes), world_out)
         recorder = run.start("recorder", recorder_spec(opts, team), grace_s=RECORDER_GRACE_S) if opts.record else None
         drivers = [run.start(name, spec) for name, spec in specs.items()]
         # the recorder leaving, or a host or the planner failing, before the world ends is an error
@@ -128,6 +128,7 @@ def launch(opts: RunOptions) -> dict:
 # ----------------------------------------------------------------------------- training
 EPISODE_FIELDS = ("episode", "food", "seed", "size", "highway_intensity", "deposit_strength", "missed_actions",
                   "rejected_actions", "steps_per_s", "state_digest")  # of each episode's summary, kept
+LEARNING_HOST = "agent_host_0"  # the node name of train-ros's one learning host (the world's only driver)
 TRAINING_DEADLINE_MS = 120_000.0  # a lockstep step may wait this long for an update (and the trainer for the last)
 
 
@@ -164,14 +165,14 @@ def training_specs(opts: TrainRunOptions, config_file: Path, start: int) -> dict
     chunks = math.ceil(opts.config.episode_steps / opts.config.rollout_steps)
     world = WorldNodeOptions(namespace=opts.namespace, deadline_s=opts.deadline_ms / 1e3,
                              startup_timeout_s=opts.startup_timeout_s, viewer_every=opts.viewer_every,
-                             external=(), drivers=(topics.full_name(opts.namespace, "agent_host_0"),))
+                             external=(), drivers=(topics.full_name(opts.namespace, LEARNING_HOST),))
     return {
         "trainer": node_spec("trainer", **common, run_dir=opts.run_dir, resume=not opts.fresh,
                              max_rollouts=opts.episodes * chunks, max_lag=max(DEFAULT_MAX_LAG, chunks)),
         "world": node_spec("world", train_config=str(config_file), episodes=opts.episodes,
                            first_episode=start, options=asdict(world), domain_id=opts.domain_id),
         "host0": node_spec("learning_agents", **common, agent_ids=list(range(opts.config.teams[0])),
-                           switch=opts.switch, episodes=opts.episodes, first_episode=start, name="agent_host_0"),
+                           switch=opts.switch, episodes=opts.episodes, first_episode=start, name=LEARNING_HOST),
     }
 
 

@@ -173,7 +173,8 @@ class Ownership:
         return sum(f"{ns.rstrip('/')}/{name}" == owner for name, ns in self.node.get_node_names_and_namespaces())
 
     def _bind(self, claim: dict) -> None:
-        self._forget_verdicts()  # owners may change here: every source is checked again
+        self.trusted.clear()  # owners may change here: every source is checked again
+        self.batch_agents.clear()
         taken = []
         now = time.monotonic()
         for a in claim["agents"]:
@@ -258,10 +259,6 @@ class Ownership:
             self.told.add(key)
             self.node.get_logger().warning(f"{what} ({reason}): {source} (logged once, counted in the summary)")
 
-    def _forget_verdicts(self) -> None:
-        self.trusted.clear()
-        self.batch_agents.clear()
-
     def _action_topic(self, agent: int) -> str:
         return topics.full_name(self.namespace or "/", topics.agent_topic(agent, topics.AGENT_ACTION))
 
@@ -289,7 +286,7 @@ class Ownership:
         agent waits; counted as ``foreign publisher``, an ERROR once per topic). The nodes whose
         claims for the agent the world refused were told so and stand down: they are allowed."""
         reader = self.agent_readers.get(via)
-        if reader is None:
+        if reader is None or reader.get_publisher_count() <= 1:  # the common case, checked on every action
             return False
         told = sum(agent in c["agents"] and not c["actions"] for c in (*self.refused.values(), *self.outsiders.values()))
         if reader.get_publisher_count() <= 1 + told:
@@ -324,11 +321,10 @@ class Ownership:
                 return False
             self.trusted[(via, agent)] = now + GRAPH_REFRESH_S
             return True
-        if claim is None and self.external is not None and agent not in self.external and via == self._action_topic(agent):
-            self._count("unclaimed", 1, f"{via} (agent {agent} is not --external: only the run's own drivers "
-                                        "drive it, and none has claimed it)")
-        else:
-            self._count("unclaimed" if claim is None else "not owner", 1, f"{via} (agent {agent} and maybe more)")
+        closed = claim is None and self.external is not None and agent not in self.external
+        detail = (f"agent {agent} is not --external: only the run's own drivers drive it, and none has claimed it"
+                  if closed else f"agent {agent} and maybe more")
+        self._count("unclaimed" if claim is None else "not owner", 1, f"{via} ({detail})")
         return False
 
     def allowed_batch(self, via: str, ids: np.ndarray) -> np.ndarray:
