@@ -272,14 +272,15 @@ class _Run:
         needs (a snapshot of the weights is taken there), then write the mean."""
         stage, count = self.recipe.stages[index], len(self.recipe.stages)
         where = self.run_dir / stage.name
-        episode = _progress(where / "latest.pt")["episode"]
+        progress = _progress(where / "latest.pt")
+        episode = progress["episode"]
         if episode >= stage.episodes:
             self.echo(f"stage {index + 1}/{count} {stage.name}: complete ({stage.episodes} episodes), skipped")
         else:
             fresh = "" if stage.start == "scratch" else " (a fresh optimiser)"
             resume = f", resuming at episode {episode}" if episode else ""
             self.echo(f"stage {index + 1}/{count} {stage.name}: {stage.episodes} episodes from {stage.start}{fresh}"
-                      f"{resume} | {self.budget(self.episodes + episode, self.cpu_seconds)}")
+                      f"{resume} | {self.budget(self.episodes + episode, self.cpu_seconds + progress['cpu_seconds'])}")
             cfg = stage_config(self.recipe, index, self.run_dir, self.seed)
             while episode < stage.episodes:
                 self.snapshot(stage, episode)
