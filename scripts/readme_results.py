@@ -1,0 +1,214 @@
+#!/usr/bin/env python3
+"""The README's results block, rebuilt from the evaluation folders by one command.
+
+    .venv/bin/python scripts/readme_results.py --write README.md   # replace the block in place
+    .venv/bin/python scripts/readme_results.py --check README.md   # exit 1 if the README is stale
+
+The shipped model's episodes come from ``--model-eval`` (its ``formic`` records, every variant);
+the baselines' and the planner's from ``--baselines-eval`` (every other algorithm), on the same
+stored scenarios. The block holds: food per cell beside the paper's, a figure, and the paired
+comparisons (mean of per-scenario differences with 95% intervals, ``formic_eval.paired``):
+ForMIC against C-SAF-11 and Cardinality-MR, the cost of an empty pheromone channel, and the
+cost of wipeouts on the same layouts. Every number names its model by file and digest.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "src"))
+
+from formic_eval.matrix import file_digest  # noqa: E402
+from formic_eval.paired import PairedDifference, compare, layout_key  # noqa: E402
+from formic_eval.paper import PAPER_TEAMS, algorithm_label, paper_food  # noqa: E402
+from formic_eval.plots import plot_food_vs_team  # noqa: E402
+from formic_eval.results import aggregate  # noqa: E402
+from formic_eval.runner import EpisodeLog  # noqa: E402
+
+BEGIN, END = "<!-- results:begin (scripts/readme_results.py) -->", "<!-- results:end -->"
+SIZE, STEPS = 128, 1024
+# rows of the main table, in order: (algorithm, variant)
+ROWS = [("formic", ""), ("formic", "no-pheromones"), ("planner", ""), ("csaf11", ""), ("csaf", ""),
+        ("cardinality", ""), ("csaf11-ref", ""), ("csaf-ref", ""), ("random", "")]
+SETTINGS = [(env, obstacles) for obstacles in (0.0, 0.05) for env in ("infinite", "finite", "wipeout")]
+BASELINES = [("csaf11", "C-SAF-11"), ("cardinality", "Cardinality-MR")]
+
+
+def load(folder: Path) -> list[dict]:
+    return list(EpisodeLog(Path(folder) / "episodes.jsonl").load().values())
+
+
+def select(records: list[dict], algorithm: str, variant: str = "", **setting) -> list[dict]:
+    return [r for r in records if r["algorithm"] == algorithm and r["variant"] == variant
+            and r["size"] == SIZE and r["steps"] == STEPS and all(r[k] == v for k, v in setting.items())]
+
+
+def signed(value: float) -> str:
+    return f"{value:+.0f}"
+
+
+def difference(d: PairedDifference) -> str:
+    return f"{signed(d.mean)} [{signed(d.low)}, {signed(d.high)}] (n={d.n})"
+
+
+def percent_less(d: PairedDifference) -> str:
+    """``d`` is changed minus base: how much less the changed one deposits, in % of base."""
+    mean, low, high = d.percent()
+    return f"{-mean:.0f}% [{-high:.0f}, {-low:.0f}] (n={d.n})"
+
+
+def setting_title(env: str, obstacles: float) -> str:
+    what = {"infinite": "infinite", "finite": "finite", "wipeout": "infinite, 3 wipeouts"}[env]
+    return f"{what}, {obstacles * 100:g}% obstacles"
+
+
+def main_table(cells: list[dict]) -> list[str]:
+    by_key = {(c["algorithm"], c["variant"], c["env"], c["obstacles"], c["agents"]): c for c in cells}
+    lines = ["| setting | algorithm | " + " | ".join(f"{n} agents" for n in PAPER_TEAMS) + " |",
+             "|---|---|" + "---|" * len(PAPER_TEAMS)]
+    for env, obstacles in SETTINGS:
+        first = True
+        for algorithm, variant in ROWS:
+            row = [by_key.get((algorithm, variant, env, obstacles, n)) for n in PAPER_TEAMS]
+            if not any(row):
+                continue
+            label = next(algorithm_label(c) for c in row if c)
+            if algorithm == "formic" and not variant:
+                label = f"**{label}**"
+            counts = sorted({c["n"] for c in row if c})
+            setting = f"{setting_title(env, obstacles)} (n={'/'.join(map(str, counts))})" if first else ""
+            lines.append(f"| {setting} | {label} | " + " | ".join(food_cell(c) for c in row) + " |")
+            first = False
+    return lines
+
+
+def food_cell(cell: dict | None) -> str:
+    if cell is None:
+        return "–"
+    text = f"{cell['food_mean']:.0f} ± {cell['food_std']:.0f}"
+    if cell.get("paper_food") is not None:
+        text += f" ({cell['paper_food']:.0f})"
+    if cell.get("food_ratio_to_planner") is not None and cell["algorithm"] != "planner":
+        text += f" [{cell['food_ratio_to_planner']:.2f}]"
+    return text
+
+
+def paired_table(model: list[dict], baselines: list[dict]) -> list[str]:
+    """One row per setting and comparison; one column per team size."""
+    header = ["| setting | comparison | " + " | ".join(f"{n} agents" for n in PAPER_TEAMS) + " |",
+              "|---|---|" + "---|" * len(PAPER_TEAMS)]
+    lines = []
+    for env, obstacles in SETTINGS:
+        ours = select(model, "formic", env=env, obstacles=obstacles)
+        if not ours:
+            continue
+        rows: list[tuple[str, dict]] = []
+        for name, title in BASELINES:
+            found = compare(ours, select(baselines, name, env=env, obstacles=obstacles))
+            rows.append((f"ForMIC − {title} (food)", {k[1]: difference(d) for k, d in found.items()}))
+        empty = compare(select(model, "formic", "no-pheromones", env=env, obstacles=obstacles), ours)
+        rows.append(("pheromone channel empty: less food", {k[1]: percent_less(d) for k, d in empty.items()}))
+        if env == "wipeout":
+            plain = select(model, "formic", env="infinite", obstacles=obstacles)
+            cost = compare(ours, plain, key=layout_key)
+            rows.append(("3 wipeouts: less food than the same layouts without",
+                         {k[1]: percent_less(d) for k, d in cost.items()}))
+        title = setting_title(env, obstacles)
+        for label, by_team in rows:
+            if by_team:
+                lines.append(f"| {title} | {label} | " + " | ".join(by_team.get(n, "–") for n in PAPER_TEAMS) + " |")
+                title = ""
+    return header + lines if lines else []
+
+
+def paper_ratio_line(cells: list[dict]) -> list[str]:
+    """ForMIC's food over the paper's ForMIC per cell (the paper gives no spread: a plain ratio)."""
+    lines = []
+    for env, obstacles in SETTINGS:
+        ratios = []
+        for n in PAPER_TEAMS:
+            cell = next((c for c in cells if (c["algorithm"], c["variant"], c["env"], c["obstacles"], c["agents"])
+                         == ("formic", "", env, obstacles, n)), None)
+            published = paper_food(cell) if cell else None
+            ratios.append(f"{cell['food_mean'] / published:.2f}" if cell and published else "–")
+        if any(r != "–" for r in ratios):
+            lines.append(f"| {setting_title(env, obstacles)} | " + " | ".join(ratios) + " |")
+    if not lines:
+        return []
+    return (["| setting | " + " | ".join(f"{n} agents" for n in PAPER_TEAMS) + " |",
+             "|---|" + "---|" * len(PAPER_TEAMS)] + lines)
+
+
+def block(model_eval: Path, baselines_eval: Path, model_file: Path, figure: Path) -> str:
+    model = [r for r in load(model_eval) if r["algorithm"] == "formic"]
+    baselines = [r for r in load(baselines_eval) if r["algorithm"] != "formic"]
+    digests = sorted({r["model"] for r in model})
+    if digests != [file_digest(model_file)]:
+        raise SystemExit(f"{model_eval} holds episodes of model(s) {digests}, not of {model_file} "
+                         f"({file_digest(model_file)}): evaluate the shipped model there first")
+    cells = aggregate([r for r in model + baselines if r["size"] == SIZE and r["steps"] == STEPS])
+    plot_food_vs_team([c for c in cells if c["variant"] == ""], figure)
+    rel = lambda p: Path(p).resolve().relative_to(ROOT).as_posix()  # noqa: E731
+    parts = [
+        BEGIN,
+        f"ForMIC here is `{rel(model_file)}` (digest `{digests[0]}`), its episodes in `{rel(model_eval)}/`; "
+        f"every other algorithm's in `{rel(baselines_eval)}/`, on the same stored scenarios. Food deposited in "
+        f"{STEPS} steps on {SIZE}x{SIZE} worlds, mean ± std over the n scenarios; (the paper's value); "
+        "[food ÷ the centralized planner's on the same scenarios].",
+        "",
+        *main_table(cells),
+        "",
+        f"![food versus team size]({rel(figure)})",
+        "",
+        "ForMIC's food divided by the paper's ForMIC (the paper's values are read from its plots, ±~10):",
+        "",
+        *paper_ratio_line(cells),
+        "",
+        "Paired comparisons: the mean over scenarios of the per-scenario difference, [its 95% interval] "
+        "(Student's t over the n pairs). A difference whose interval excludes 0 is a difference; "
+        "\"less food\" is that difference as a share of the first one's mean.",
+        "",
+        *paired_table(model, baselines),
+        END,
+    ]
+    return "\n".join(parts)
+
+
+def splice(text: str, new_block: str) -> str:
+    start, end = text.find(BEGIN), text.find(END)
+    if start < 0 or end < start:
+        raise SystemExit(f"the README has no results block ({BEGIN} ... {END})")
+    return text[:start] + new_block + text[end + len(END):]
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--model-eval", type=Path, default=ROOT / "eval" / "formic_paper")
+    parser.add_argument("--baselines-eval", type=Path, default=ROOT / "eval" / "readme")
+    parser.add_argument("--model", type=Path, default=ROOT / "models" / "formic_paper.pt")
+    parser.add_argument("--figure", type=Path, default=ROOT / "eval" / "formic_paper" / "readme_food_vs_team.png")
+    action = parser.add_mutually_exclusive_group()
+    action.add_argument("--write", type=Path, metavar="README", help="replace the block in this file")
+    action.add_argument("--check", type=Path, metavar="README", help="exit 1 if this file's block is stale")
+    args = parser.parse_args()
+    new_block = block(args.model_eval, args.baselines_eval, args.model, args.figure)
+    target = args.write or args.check
+    if target is None:
+        print(new_block)
+        return 0
+    text = target.read_text()
+    updated = splice(text, new_block)
+    if args.check:
+        if updated != text:
+            print(f"{target}'s results block is stale: run scripts/readme_results.py --write {target}", file=sys.stderr)
+            return 1
+        return 0
+    target.write_text(updated)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

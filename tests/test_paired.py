@@ -1,0 +1,60 @@
+"""Paired comparisons (formic_eval.paired): per-scenario differences, their t interval, and
+which episodes pair up (same scenario; for wipeouts, the same layout)."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from formic_eval.paired import compare, layout_key, paired_difference
+
+
+def record(algorithm, food, seed, env="infinite", agents=16, digest=None):
+    return {"algorithm": algorithm, "variant": "", "size": 32, "agents": agents, "obstacles": 0.0, "env": env,
+            "steps": 64, "seed": seed, "scenario_digest": digest or f"{env}{seed}", "food": food}
+
+
+def test_difference_and_interval_by_hand():
+    d = paired_difference([12, 15, 11, 18], [10, 10, 10, 10])
+    # differences 2, 5, 1, 8: mean 4, sample std sqrt(10); t(0.975, 3) = 3.182446305
+    half = 3.182446305284263 * math.sqrt(10) / 2
+    assert (d.n, d.mean, d.base_mean) == (4, 4.0, 10.0)
+    assert d.low == pytest.approx(4 - half, abs=1e-9) and d.high == pytest.approx(4 + half, abs=1e-9)
+    assert not d.significant  # 4 - 5.03 < 0
+    assert d.percent() == pytest.approx((40.0, 10 * (4 - half), 10 * (4 + half)))
+    assert paired_difference([3, 4, 5], [1, 2, 3]).significant  # a constant +2: zero-width interval
+
+
+def test_one_pair_has_no_interval_and_bad_input_is_refused():
+    d = paired_difference([5], [3])
+    assert d.mean == 2 and math.isinf(d.low) and math.isinf(d.high) and not d.significant
+    with pytest.raises(ValueError, match="pairs"):
+        paired_difference([1, 2], [1])
+    with pytest.raises(ValueError, match="pairs"):
+        paired_difference([], [])
+
+
+def test_only_shared_scenarios_pair_per_setting():
+    ours = [record("formic", 10, 1), record("formic", 20, 2), record("formic", 30, 3),
+            record("formic", 50, 1, agents=32)]
+    theirs = [record("csaf11", 8, 1), record("csaf11", 17, 2), record("csaf11", 99, 4),
+              record("csaf11", 45, 1, agents=32)]
+    found = compare(ours, theirs)
+    assert set(found) == {(32, 16, 0.0, "infinite", 64), (32, 32, 0.0, "infinite", 64)}
+    assert (found[(32, 16, 0.0, "infinite", 64)].n, found[(32, 16, 0.0, "infinite", 64)].mean) == (2, 2.5)
+    assert found[(32, 32, 0.0, "infinite", 64)].mean == 5
+
+
+def test_wipeouts_pair_with_the_same_layout():
+    plain = [record("formic", 100, s) for s in (1, 2)]
+    wiped = [record("formic", f, s, env="wipeout") for f, s in ((90, 1), (70, 2))]
+    assert compare(wiped, plain) == {}  # different scenarios: nothing pairs by scenario
+    cost = compare(wiped, plain, key=layout_key)[(32, 16, 0.0, 64)]
+    assert (cost.n, cost.mean, cost.base_mean) == (2, -20.0, 100.0)
+
+
+def test_a_scenario_run_twice_is_an_error():
+    twice = [record("formic", 10, 1), record("formic", 11, 1)]
+    with pytest.raises(ValueError, match="two episodes on one scenario"):
+        compare(twice, [record("csaf11", 8, 1)])
