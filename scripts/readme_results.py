@@ -142,7 +142,8 @@ def paper_ratio_line(cells: list[dict]) -> list[str]:
              "|---|" + "---|" * len(PAPER_TEAMS)] + lines)
 
 
-def block(model_eval: Path, baselines_eval: Path, model_file: Path, figure: Path) -> str:
+def block(model_eval: Path, baselines_eval: Path, model_file: Path, figure: Path, draw: bool) -> str:
+    """The results block; ``draw``: (re)draw its figure too."""
     model = [r for r in load(model_eval) if r["algorithm"] == "formic"]
     baselines = [r for r in load(baselines_eval) if r["algorithm"] != "formic"]
     digests = sorted({r["model"] for r in model})
@@ -150,7 +151,8 @@ def block(model_eval: Path, baselines_eval: Path, model_file: Path, figure: Path
         raise SystemExit(f"{model_eval} holds episodes of model(s) {digests}, not of {model_file} "
                          f"({file_digest(model_file)}): evaluate the shipped model there first")
     cells = aggregate([r for r in model + baselines if r["size"] == SIZE and r["steps"] == STEPS])
-    plot_food_vs_team([c for c in cells if c["variant"] == ""], figure)
+    if draw:
+        plot_food_vs_team([c for c in cells if c["variant"] == ""], figure)
     rel = lambda p: Path(p).resolve().relative_to(ROOT).as_posix()  # noqa: E731
     parts = [
         BEGIN,
@@ -194,7 +196,7 @@ def main() -> int:
     action.add_argument("--write", type=Path, metavar="README", help="replace the block in this file")
     action.add_argument("--check", type=Path, metavar="README", help="exit 1 if this file's block is stale")
     args = parser.parse_args()
-    new_block = block(args.model_eval, args.baselines_eval, args.model, args.figure)
+    new_block = block(args.model_eval, args.baselines_eval, args.model, args.figure, draw=args.check is None)
     target = args.write or args.check
     if target is None:
         print(new_block)

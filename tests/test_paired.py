@@ -58,3 +58,16 @@ def test_a_scenario_run_twice_is_an_error():
     twice = [record("formic", 10, 1), record("formic", 11, 1)]
     with pytest.raises(ValueError, match="two episodes on one scenario"):
         compare(twice, [record("csaf11", 8, 1)])
+
+
+def test_readme_results_block_is_current():
+    """The README's results block is what scripts/readme_results.py builds from the committed
+    evaluation folders (rebuild it with --write after an evaluation)."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    done = subprocess.run([sys.executable, str(root / "scripts" / "readme_results.py"), "--check", str(root / "README.md")],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
