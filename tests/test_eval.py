@@ -245,6 +245,35 @@ def test_no_pheromones_and_greedy_apply_to_the_learned_policy_only(tmp_path, mon
     assert seen == [False] and record["variant"] == "greedy+no-pheromones" and record["model"] == "abc"
 
 
+def test_pheromone_variant_applies_to_every_world_and_labels_every_cell(tmp_path, monkeypatch):
+    """`--variant flat|noisy|random` (the paper's out-of-distribution trail tests) changes every
+    algorithm's world, not the stored scenario, and keeps its episodes apart from the standard ones."""
+    matrix = generate_matrix([Setting(32, 4, 0.0, "infinite", 20)], 1, seed=0, directory=tmp_path / "scen")
+    options = PolicyOptions(model="m.pt", model_digest="abc", no_pheromones=True, pheromone_variant="flat")
+    tasks = {t.algorithm: t for t in plan_tasks(matrix, ["formic", "random"], options)}
+    assert (tasks["formic"].variant, tasks["random"].variant) == ("no-pheromones+trails-flat", "trails-flat")
+    plain = {t.algorithm: t for t in plan_tasks(matrix, ["random"], PolicyOptions())}
+    assert plain["random"].variant == "" and plain["random"].key != tasks["random"].key
+
+    import formic_runtime.episode
+
+    seen = []
+    real = formic_runtime.episode.run_episode
+
+    def spy(scenario, *args, **kwargs):
+        seen.append(scenario.config.pheromone_variant)
+        return real(scenario, *args, **kwargs)
+
+    monkeypatch.setattr(formic_runtime.episode, "run_episode", spy)
+    from formic_eval.runner import run_task
+
+    record = run_task(tasks["random"])
+    stored = Scenario.load(next(iter(matrix.values()))[0].path)
+    assert seen == ["flat"] and record["variant"] == "trails-flat" and stored.config.pheromone_variant == "standard"
+    result = CliRunner().invoke(cli, ["eval", "--algorithms", "random", "--variant", "sideways", "--out", str(tmp_path)])
+    assert result.exit_code == 2 and "sideways" in result.output
+
+
 # ------------------------------------------------------------------------------------ math
 def test_food_stats_on_known_values():
     stats = food_stats([1.0, 2.0, 3.0, 4.0])

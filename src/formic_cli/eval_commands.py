@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import click
+
+from formic_world.config import PHEROMONE_VARIANTS
 
 from .options import json_option
 from .summary import click_errors, emit
@@ -50,6 +53,10 @@ def _split(text: str, kind, option: str, choices=None) -> list:
 @click.option("--greedy", is_flag=True, help="The learned policy takes its most likely action.")
 @click.option("--no-pheromones", is_flag=True,
               help="The learned policy sees an empty pheromone channel (the paper's ablation).")
+@click.option("--variant", "pheromone_variant", type=click.Choice(PHEROMONE_VARIANTS), default="standard",
+              show_default=True, help="Pheromone variant of every world, the paper's out-of-distribution "
+              "tests: flat (decaying trails without gradient), noisy (locally noisy gradient), random "
+              "(random concentration 0.2-1).")
 @click.option("--workers", default=2, show_default=True, type=click.IntRange(1),
               help="Episodes run in parallel processes (1: in this process; fairest for timings).")
 @click.option("--report", "report_only", is_flag=True,
@@ -57,7 +64,7 @@ def _split(text: str, kind, option: str, choices=None) -> list:
 @json_option()
 @click.pass_context
 def eval_command(ctx, algorithms, sizes, teams, obstacles, envs, scenarios, seed, steps, out, model, greedy,
-                 no_pheromones, workers, report_only, as_json) -> None:
+                 no_pheromones, pheromone_variant, workers, report_only, as_json) -> None:
     """Run every algorithm on the same stored scenarios; write CSV/JSON results, figures and
     OUT/results.md (ours beside the paper's numbers). Interrupt with Ctrl-C and rerun to resume."""
     if report_only:
@@ -79,7 +86,8 @@ def eval_command(ctx, algorithms, sizes, teams, obstacles, envs, scenarios, seed
     obstacle_list = _split(obstacles, float, "--obstacles") if obstacles else None
     env_list = _split(envs, str, "--env", ENVIRONMENTS) if envs else None
 
-    options = _policy_options(names, model, greedy, no_pheromones)
+    options = dataclasses.replace(_policy_options(names, model, greedy, no_pheromones),
+                                  pheromone_variant=pheromone_variant)
     out_dir = Path(out)
     with click_errors(ScenarioError, ValueError, prefix="scenarios: "):
         if scenarios.strip().isdigit():

@@ -7,6 +7,7 @@ import click
 
 from formic_view import DEFAULT_HOST, DEFAULT_PORT
 from formic_world import WorldConfig
+from formic_world.config import PHEROMONE_VARIANTS
 
 from .summary import click_errors
 
@@ -54,7 +55,7 @@ def world_option_group(steps: int = 512, steps_help: str = "Episode length."):
                      show_default=True, help="Resource capacity."),
         click.option("--wipeouts", type=click.IntRange(min=0), default=0, show_default=True,
                      help="Pheromone wipeouts of 100 steps."),
-        click.option("--variant", "pheromone_variant", type=click.Choice(["standard", "flat", "noisy", "random"]),
+        click.option("--variant", "pheromone_variant", type=click.Choice(PHEROMONE_VARIANTS),
                      default="standard", show_default=True, help="Pheromone variant."),
         click.option("--view-size", default=11, show_default=True, help="Observation window (5, 11, 21)."),
         click.option("--no-pheromones", is_flag=True, help="Agents see an empty pheromone channel."),

@@ -78,18 +78,22 @@ class StoredScenario:
 
 @dataclass(frozen=True)
 class PolicyOptions:
-    """Options of the learned policy (the baselines ignore them)."""
+    """How the algorithms run: the learned policy's options (the baselines ignore them), and
+    the pheromone variant of every world (the paper's out-of-distribution trail tests)."""
 
     model: str | None = None
     model_digest: str = ""
     greedy: bool = False
     no_pheromones: bool = False
+    pheromone_variant: str = "standard"
 
     def variant(self, algorithm: str) -> str:
-        """How this algorithm's runs differ from its plain form ("" for the baselines)."""
-        if algorithm != "formic":
-            return ""
-        return "+".join(tag for tag, on in (("greedy", self.greedy), ("no-pheromones", self.no_pheromones)) if on)
+        """How this algorithm's runs differ from its plain form ("" for plain runs), e.g.
+        ``greedy+no-pheromones`` or ``trails-flat``."""
+        learned = algorithm == "formic"
+        tags = (("greedy", learned and self.greedy), ("no-pheromones", learned and self.no_pheromones),
+                (f"trails-{self.pheromone_variant}", self.pheromone_variant != "standard"))
+        return "+".join(tag for tag, on in tags if on)
 
 
 @dataclass(frozen=True)
@@ -103,6 +107,7 @@ class Task:
     greedy: bool
     no_pheromones: bool
     scenario: StoredScenario
+    pheromone_variant: str = "standard"
 
     @property
     def key(self) -> str:
@@ -189,7 +194,7 @@ def plan_tasks(
     return [
         Task(name, options.variant(name), options.model if name == "formic" else None,
              options.model_digest if name == "formic" else "", options.greedy and name == "formic",
-             options.no_pheromones and name == "formic", scenario)
+             options.no_pheromones and name == "formic", scenario, options.pheromone_variant)
         for scenarios in matrix.values()
         for scenario in scenarios
         for name in algorithms

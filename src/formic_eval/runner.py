@@ -99,6 +99,9 @@ def run_task(task: Task) -> dict:
         scenario = Scenario.load(stored.path)
         if task.no_pheromones:
             scenario = dataclasses.replace(scenario, config=scenario.config.replace(pheromones_visible=False))
+        if task.pheromone_variant != "standard":
+            scenario = dataclasses.replace(scenario, config=scenario.config.replace(
+                pheromone_variant=task.pheromone_variant))
         # The stored layout, in the world this algorithm runs in (one-slot queues for csaf-ref).
         scenario = apply_world_overrides(scenario, [task.algorithm])
         if task.algorithm == "formic":
@@ -243,6 +246,7 @@ def evaluate(
         "model_digest": options.model_digest,
         "greedy": options.greedy,
         "no_pheromones": options.no_pheromones,
+        "pheromone_variant": options.pheromone_variant,
         "wall_s": round(stats.wall_s, 3),
         "log": {"path": str(log.path), "torn_line_removed": log.repaired, "unreadable_lines": log.skipped_lines},
     }
