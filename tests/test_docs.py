@@ -10,8 +10,8 @@ A block's language tag decides its check (an untagged block fails: tag it):
   argument fail with the block's file and line; it is not run. Paths need not exist while
   parsing (an earlier command makes them, or the reader brings them). A script
   (``scripts/...``, ``python examples/...``) must exist and answer ``--help``;
-  ``scripts/eval_readme.sh`` runs with its ``FORMIC`` hook pointing at a recorder and every
-  ``formic`` command it would run is parsed. ``python robot_agent.py`` is a program the reader
+  ``scripts/eval_readme.sh`` and ``scripts/eval_model.sh`` run with their ``FORMIC`` hook pointing
+  at a recorder and every ``formic`` command they would run is parsed. ``python robot_agent.py`` is a program the reader
   saves from a marked block (:data:`SAVED_FROM_BLOCKS`): that block must be in the same file.
 - ``python``: run as written in a subprocess (the venv's python, a fresh working directory, a
   timeout); every block is self-contained. A block right after
@@ -234,23 +234,28 @@ def shell_commands(block: Block) -> Iterator[tuple[int, list[str]]]:
                 argv = []
 
 
-def check_script(script: Path, where: str, tmp: Path) -> None:
+# scripts of formic commands taking hours: run with a ``FORMIC`` hook that records each command
+EVALUATION_SCRIPTS = ("eval_readme.sh", "eval_model.sh")
+
+
+def check_script(script: Path, where: str, tmp: Path, args: list[str] = ()) -> None:
     assert script.is_file(), f"{where}: no such file {script.relative_to(ROOT)}"
-    if script == ROOT / "scripts" / "eval_readme.sh":
-        check_eval_readme(script, where, tmp)
+    if script.parent == ROOT / "scripts" and script.name in EVALUATION_SCRIPTS:
+        check_evaluation_script(script, args, where, tmp)
         return
     assert script.suffix == ".py" or os.access(script, os.X_OK), f"{where}: {script.name} is not executable"
     answers_help(script)
 
 
-def check_eval_readme(script: Path, where: str, tmp: Path) -> None:
+def check_evaluation_script(script: Path, args: list[str], where: str, tmp: Path) -> None:
     """Hours of evaluation: run the script with ``FORMIC`` recording its commands, and parse each."""
     log, recorder = tmp / "formic_calls", tmp / "formic"
+    log.unlink(missing_ok=True)
     recorder.write_text("#!/bin/sh\nprintf '%s\\0' \"$@\" >> \"$FORMIC_LOG\"\necho >> \"$FORMIC_LOG\"\n")
     recorder.chmod(0o755)
     env = {**os.environ, "FORMIC": str(recorder), "FORMIC_LOG": str(log)}
     env.pop("OUT_DIR", None)
-    must_run([str(script)], f"{where}: {script.name} with a recording FORMIC", cwd=ROOT, env=env, timeout=60)
+    must_run([str(script), *args], f"{where}: {script.name} with a recording FORMIC", cwd=ROOT, env=env, timeout=60)
     calls = [line.split("\0")[:-1] for line in log.read_text().splitlines()]
     assert calls, f"{where}: {script.name} ran no formic command"
     for args in calls:
@@ -283,7 +288,7 @@ def check_shell_block(block: Block, tmp: Path) -> None:
         elif head in PYTHON_NAMES:
             check_script(cwd / args[0], where, tmp)
         elif "/" in head:
-            check_script(cwd / head, where, tmp)
+            check_script(cwd / head, where, tmp, args)
         else:
             pytest.fail(f"{where}: no check for the command {head!r}: teach tests/test_docs.py one", pytrace=False)
 
