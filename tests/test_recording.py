@@ -320,15 +320,19 @@ def test_replay_verify_detects_a_tampered_action(session):
     assert done.stdout.startswith("FAILED") and f"mismatch at step {step + 1}" in done.stdout
 
 
-def test_replay_verify_detects_a_tampered_state(session):
+def _bump_score(state_index: int):
+    """A change for ``_tampered_copy``: the ``state_index``-th state's score is off by one."""
     def change(topic, msg, index):
-        if topic == "/formic/state" and index == 40:
+        if topic == "/formic/state" and index == state_index:
             msg.score += 1.0
             return True
         return False
+    return change
 
+
+def test_replay_verify_detects_a_tampered_state(session):
     target = session["tmp"] / "tampered-state"
-    _tampered_copy(session["good"], target, change)
+    _tampered_copy(session["good"], target, _bump_score(40))
     report = verify_recording(target)
     assert not report.ok and "mismatch at step 40: score" in report.summary()
 
@@ -376,13 +380,7 @@ def test_replay_verify_says_where_an_interrupted_recording_ends(session):
 
 
 def test_a_stopped_recording_still_fails_a_mismatch_before_the_stop(session):
-    def change(topic, msg, index):
-        if topic == "/formic/state" and index == 10:
-            msg.score += 1.0
-            return True
-        return False
-
-    report = verify_recording(_stopped_copy(session, "stopped-tampered", 60, change))
+    report = verify_recording(_stopped_copy(session, "stopped-tampered", 60, _bump_score(10)))
     assert not report.ok and "/formic/state: mismatch at step 10: score" in report.summary()
 
 
