@@ -337,3 +337,27 @@ def test_report_sets_our_numbers_beside_the_papers():
     report = markdown_report(cells, run)
     assert "| infinite, 0% obstacles | ForMIC | 16 | 250.0 ± 14.1 | 249 | 1.00 | 0.89 | 0.90 |" in report
     assert "| infinite, 0% obstacles | centralized | 16 | 280.0 ± 14.1 | 276 | 1.01 | 1.00 | 1.00 |" in report
+
+
+def test_a_model_with_another_field_of_view_sees_the_same_layout_through_its_window(tmp_path):
+    """Table III's models (field of view 5 or 21) play the stored 11x11 scenarios: the world gives
+    each the window it was trained on; run with a mismatched window it stops with a clear error."""
+    import dataclasses
+
+    import torch
+
+    from formic_agent.checkpoint import save_checkpoint
+    from formic_agent.network import NETWORK_PRESETS, ForMICNet
+
+    torch.manual_seed(0)
+    model = tmp_path / "fov5.pt"
+    save_checkpoint(model, ForMICNet(dataclasses.replace(NETWORK_PRESETS["cpu"], view_size=5)))
+    generate_set(WorldConfig(height=32, width=32, n_agents=4, episode_steps=20), 3, 1, tmp_path / "set")
+    result = CliRunner().invoke(cli, ["eval", "--algorithms", "formic", "--model", str(model), "--scenarios",
+                                      str(tmp_path / "set"), "--out", str(tmp_path / "out"), "--workers", "1", "--json"])
+    assert result.exit_code == 0, result.output
+    assert [c["n"] for c in json.loads(result.stdout)["cells"]] == [1]
+    result = CliRunner().invoke(cli, ["sim", "--policy", "formic", "--model", str(model), "--agents", "4",
+                                      "--size", "32", "--steps", "5"])
+    assert result.exit_code == 1 and "sees 5x5 cells, the world gives 11x11: run the world with --view-size 5" \
+        in result.output, result.output

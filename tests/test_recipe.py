@@ -89,7 +89,7 @@ def test_a_recipe_runs_every_stage_then_chooses_on_validation_and_resumes_after_
     assert {p: p.stat().st_mtime_ns for p in parts.glob("*/*.pt")} == stamps
     # another seed is another run
     result = CliRunner().invoke(cli, ["train", "--recipe", "smoke", "--seed", "2", "--run-dir", str(parts)])
-    assert result.exit_code == 1 and "another recipe or seed" in result.output
+    assert result.exit_code == 1 and "another recipe, switch or seed" in result.output
 
 
 SMOKE_TEXT = (ROOT / "recipes" / "smoke.toml").read_text()
@@ -153,3 +153,57 @@ def test_the_paper_recipes_last_stages_train_as_the_lineage_did(stage, lineage):
     differ = {key for key in ours if json.dumps(ours[key]) != json.dumps(theirs[key])}
     assert differ == {"seed", "init_weights", "total_episodes", "curriculum_start", "curriculum_end"}
     assert ours["curriculum"] is False
+
+
+def test_a_switch_holds_in_every_stage_over_the_stages_own_settings():
+    plain, switched = load_recipe("smoke"), load_recipe("smoke", "all-learn")
+    assert plain.switches == switched.switches == ("blind", "all-learn")
+    assert [s.settings.get("learning_agents") for s in plain.stages] == [None, 1, 1]
+    assert [s.settings["learning_agents"] for s in switched.stages] == [-1, -1, -1]
+    assert all(s.settings.items() - {("learning_agents", -1)} <= p.settings.items()
+               for s, p in zip(switched.stages, plain.stages))
+    assert switched.identity != plain.identity and switched.switch == "all-learn"
+    result = CliRunner().invoke(cli, ["train", "--recipe", "smoke", "--switch", "sideways", "--seed", "1",
+                                      "--run-dir", "unused"])
+    assert result.exit_code == 1 and "no switch 'sideways' (switches: blind, all-learn)" in result.output
+
+
+@pytest.mark.parametrize("old, new, message", [
+    ('set = { pheromones = false }', 'set = { pheromone = false }', "switch 'blind'.set.pheromone is not a training"),
+    ('about = "every agent learns"\n', '', "switch 'all-learn': missing about"),
+])
+def test_a_malformed_switch_is_an_error_even_unused(tmp_path, old, new, message):
+    recipe = tmp_path / "bad.toml"
+    recipe.write_text(SMOKE_TEXT.replace(old, new, 1))
+    result = CliRunner().invoke(cli, ["train", "--recipe", str(recipe), "--seed", "1", "--run-dir", str(tmp_path / "r")])
+    assert result.exit_code == 1 and message in result.output, result.output
+
+
+def test_a_run_resumes_across_comment_edits_but_not_across_switches(tmp_path):
+    """The claim holds what the run trains (its identity), so editing comments, the budget or
+    other switches keeps a run resumable; another switch is another run. Claims written before
+    identities existed (the recipe's text only) still resume."""
+    from formic_trainer.recipe import _Run
+
+    edited = tmp_path / "edited.toml"
+    edited.write_text("# a new comment\n" + SMOKE_TEXT.replace("budget_cpu_hours = 0.01", "budget_cpu_hours = 0.02"))
+    _Run(load_recipe("smoke"), tmp_path / "run", 1, print)
+    _Run(load_recipe(str(edited)), tmp_path / "run", 1, print)  # accepted
+    with pytest.raises(Exception, match="another recipe, switch or seed"):
+        _Run(load_recipe("smoke", "blind"), tmp_path / "run", 1, print)
+    legacy = tmp_path / "legacy"
+    legacy.mkdir()
+    (legacy / "recipe.json").write_text(json.dumps({"recipe": str(ROOT / "recipes" / "smoke.toml"), "seed": 1,
+                                                    "text": SMOKE_TEXT}))
+    _Run(load_recipe(str(edited)), legacy, 1, print)
+    with pytest.raises(Exception, match="another recipe, switch or seed"):
+        _Run(load_recipe("smoke", "all-learn"), legacy, 1, print)
+
+
+def test_a_recipe_trained_without_pheromones_is_validated_without_them(tmp_path):
+    lines: list[str] = []
+    run_recipe(load_recipe("smoke", "blind"), tmp_path / "blind", seed=1, echo=lines.append)
+    selection = json.loads((tmp_path / "blind" / "selection.json").read_text())
+    validated = [line for line in lines if line.startswith("validation: ")]
+    assert len(validated) == 2 and all("(pheromone channel empty)" in line for line in validated)
+    assert selection["channel_empty"]["less_by_team"] == {"2": 0.0, "3": 0.0}

@@ -49,8 +49,17 @@ class LearnedPolicy(Policy):
             self.hidden = torch.cat([self.hidden, pad], dim=1)
             self.cell = torch.cat([self.cell, pad.clone()], dim=1)
 
+    @property
+    def view_size(self) -> int:
+        """The observation window this network was trained on (the world must give it)."""
+        return self.net.config.view_size
+
     @torch.no_grad()
     def act(self, batch: AgentBatch) -> np.ndarray:
+        seen = batch.observations.shape[-1]
+        if seen != self.view_size:
+            raise ValueError(f"{self.checkpoint or 'this model'} sees {self.view_size}x{self.view_size} cells, the "
+                             f"world gives {seen}x{seen}: run the world with --view-size {self.view_size}")
         ids = torch.as_tensor(batch.agent_ids, dtype=torch.long)
         self._ensure_capacity(int(ids.max()))
         obs = torch.from_numpy(batch.observations).unsqueeze(0)

@@ -242,13 +242,15 @@ def bench_decide(size, teams, steps, seed, policy, model, threads, as_json) -> N
 @click.option("--recipe", help="Run every stage of a recipe (recipes/NAME.toml, or a .toml file) into RUN_DIR "
               "and choose RUN_DIR/model.pt on validation; resumes (docs/training.md).")
 @click.option("--seed", type=int, help="The recipe's seed (with --recipe; a single run: --set seed=N).")
+@click.option("--switch", default="", help="With --recipe: one of its [switch.NAME] tables laid over every "
+              "stage (e.g. a row of the paper's ablation tables).")
 @click.pass_context
-def train(ctx, preset, run_dir, episodes, minutes, fresh, overrides, export, recipe, seed) -> None:
+def train(ctx, preset, run_dir, episodes, minutes, fresh, overrides, export, recipe, seed, switch) -> None:
     """Train a policy; checkpoints to RUN_DIR/latest.pt, TensorBoard logs to RUN_DIR/tb.
 
     Resumes from RUN_DIR/latest.pt when it exists. `--episodes 0 --export FILE` only exports."""
-    if recipe is not None or seed is not None:
-        _train_recipe(ctx, recipe, seed, Path(run_dir))
+    if recipe is not None or seed is not None or switch:
+        _train_recipe(ctx, recipe, seed, switch, Path(run_dir))
         return
     from formic_trainer.config import make_config, parse_overrides
     from formic_trainer.train import Trainer, export_model
@@ -262,7 +264,7 @@ def train(ctx, preset, run_dir, episodes, minutes, fresh, overrides, export, rec
         click.echo(f"exported {export}")
 
 
-def _train_recipe(ctx: click.Context, recipe: str | None, seed: int | None, run_dir: Path) -> None:
+def _train_recipe(ctx: click.Context, recipe: str | None, seed: int | None, switch: str, run_dir: Path) -> None:
     """`formic train --recipe`: the recipe sets every stage, so the single-run options are refused."""
     from click.core import ParameterSource
 
@@ -276,7 +278,7 @@ def _train_recipe(ctx: click.Context, recipe: str | None, seed: int | None, run_
     if given:
         raise click.UsageError(f"--recipe sets every stage itself: drop {', '.join(given)}")
     with click_errors(TypeError, ValueError, interrupted="interrupted: rerun the same command to resume"):
-        run_recipe(load_recipe(recipe), run_dir, seed, echo=click.echo)
+        run_recipe(load_recipe(recipe, switch), run_dir, seed, echo=click.echo)
 
 
 def _register_optional() -> None:

@@ -106,6 +106,9 @@ def run_task(task: Task) -> dict:
         scenario = apply_world_overrides(scenario, [task.algorithm])
         if task.algorithm == "formic":
             policy = _learned_policy(task.model, task.model_digest, task.greedy)
+            # the same layout, observed through the window the model was trained on (Table III)
+            if policy.view_size != scenario.config.view_size:
+                scenario = dataclasses.replace(scenario, config=scenario.config.replace(view_size=policy.view_size))
         else:
             policy = make_policy(task.algorithm)
         start = time.perf_counter()

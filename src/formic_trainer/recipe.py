@@ -79,10 +79,21 @@ class Recipe:
     stages: tuple[Stage, ...]
     candidates: tuple[str, ...]
     validation: Validation
+    switch: str = ""  # the switch applied to every stage ("" = the recipe as written)
+    switches: tuple[str, ...] = ()  # every switch the file defines
 
     @property
     def episodes(self) -> int:
         return sum(stage.episodes for stage in self.stages)
+
+    @property
+    def identity(self) -> str:
+        """What a run of this recipe trains and how it chooses, as canonical JSON: a run
+        directory resumes only under the same identity (comments, the budget line and other
+        switches may change in between)."""
+        return json.dumps({"preset": self.preset, "stages": [asdict(stage) for stage in self.stages],
+                           "candidates": self.candidates, "validation": asdict(self.validation)},
+                          sort_keys=True)
 
 
 def recipe_path(spec: str) -> Path:
@@ -91,9 +102,11 @@ def recipe_path(spec: str) -> Path:
     return path if path.suffix == ".toml" or len(path.parts) > 1 else RECIPES / f"{spec}.toml"
 
 
-def load_recipe(spec: str) -> Recipe:
-    """Read and check a recipe: every stage's configuration is built once here, so a mistake
-    fails before any training, in one line naming the file."""
+def load_recipe(spec: str, switch: str = "") -> Recipe:
+    """Read and check a recipe, with one of its switches (``[switch.NAME]``: settings laid over
+    every stage, e.g. one row of the paper's ablation tables) when ``switch`` names one. Every
+    stage's configuration is built once here, so a mistake fails before any training, in one
+    line naming the file."""
     path = recipe_path(spec)
     try:
         text = path.read_text()
@@ -101,7 +114,7 @@ def load_recipe(spec: str) -> Recipe:
         known = ", ".join(sorted(p.stem for p in RECIPES.glob("*.toml")))
         raise RecipeError(f"{path}: cannot read ({exc.strerror}); recipes here: {known}") from None
     try:
-        return _parse(tomllib.loads(text), path, text)
+        return _parse(tomllib.loads(text), path, text, switch)
     except tomllib.TOMLDecodeError as exc:
         raise RecipeError(f"{path}: not valid TOML ({exc})") from None
     except (TypeError, ValueError) as exc:  # RecipeError, or a TrainConfig's own check
@@ -144,11 +157,42 @@ def _number(table: dict, key: str, where: str, kind: type = int, least: float = 
     return value
 
 
-def _parse(data: dict, path: Path, text: str) -> Recipe:
-    _keys(data, "recipe", {"preset", "budget_cpu_hours", "candidates", "validation", "stage"})
+def _settings(table: dict, where: str, defaults: TrainConfig) -> dict:
+    """A ``set`` table as TrainConfig values (only fields a recipe may set)."""
+    if not isinstance(table, dict):
+        raise RecipeError(f"{where} must be a table")
+    known, settings = {f.name for f in fields(TrainConfig)}, {}
+    for key, value in table.items():
+        if key not in known:
+            raise RecipeError(f"{where}.{key} is not a training setting (a TrainConfig field)")
+        if key in DERIVED:
+            raise RecipeError(f"{where}.{key}: given by {DERIVED[key]}")
+        settings[key] = _typed(value, getattr(defaults, key), f"{where}.{key}")
+    return settings
+
+
+def _switch_settings(data: dict, switch: str, defaults: TrainConfig) -> tuple[dict, tuple[str, ...]]:
+    """The chosen switch's settings (empty for none) and the names of every switch."""
+    switches = data.get("switch", {})
+    if not isinstance(switches, dict):
+        raise RecipeError("switch must be a table of [switch.NAME] tables")
+    for name, table in switches.items():
+        if not _NAME.fullmatch(name):
+            raise RecipeError(f"switch {name!r}: a name of letters, digits, - and _")
+        _keys(table, f"switch {name!r}", {"about", "set"})
+        _settings(table["set"], f"switch {name!r}.set", defaults)
+    if switch and switch not in switches:
+        raise RecipeError(f"no switch {switch!r} (switches: {', '.join(switches) or 'none'})")
+    chosen = _settings(switches[switch]["set"], f"switch {switch!r}.set", defaults) if switch else {}
+    return chosen, tuple(switches)
+
+
+def _parse(data: dict, path: Path, text: str, switch: str = "") -> Recipe:
+    _keys(data, "recipe", {"preset", "budget_cpu_hours", "candidates", "validation", "stage"}, {"switch"})
     if data["preset"] not in PRESETS:
         raise RecipeError(f"preset {data['preset']!r} is not one of {', '.join(PRESETS)}")
-    defaults, known = TrainConfig(), {f.name for f in fields(TrainConfig)}
+    defaults = TrainConfig()
+    switched, switch_names = _switch_settings(data, switch, defaults)
     stages: list[Stage] = []
     settings: dict = {}
     if not isinstance(data["stage"], list) or not data["stage"]:
@@ -162,17 +206,10 @@ def _parse(data: dict, path: Path, text: str) -> Recipe:
             raise RecipeError(f"stage {i + 1}: name {name!r} must be new, not 'scratch', of letters, digits, - and _")
         if start != "scratch":
             _reference(start, earlier, f"{where}: start")
-        own = table.get("set", {})
-        if not isinstance(own, dict):
-            raise RecipeError(f"{where}.set must be a table")
-        for key, value in own.items():
-            if key not in known:
-                raise RecipeError(f"{where}.set.{key} is not a training setting (a TrainConfig field)")
-            if key in DERIVED:
-                raise RecipeError(f"{where}.set.{key}: given by {DERIVED[key]}")
-            settings[key] = _typed(value, getattr(defaults, key), f"{where}.set.{key}")
+        settings |= _settings(table.get("set", {}), f"{where}.set", defaults)
+        staged = settings | switched  # a switch holds in every stage, over the stage's own settings
         try:
-            cfg = make_config(data["preset"], **settings)
+            cfg = make_config(data["preset"], **staged)
         except (TypeError, ValueError) as exc:
             raise RecipeError(f"{where}: {exc}") from None
         worlds, episodes = len(cfg.teams), _number(table, "episodes", where)
@@ -186,7 +223,7 @@ def _parse(data: dict, path: Path, text: str) -> Recipe:
         if any(n % worlds for n in (episodes, *(average or ()))):
             raise RecipeError(f"{where}: episodes and average must be multiples of its {worlds} worlds "
                               "(one episode set plays one episode in each)")
-        stages.append(Stage(name, episodes, start, dict(settings), average))
+        stages.append(Stage(name, episodes, start, staged, average))
     candidates = data["candidates"]
     if not isinstance(candidates, list) or not candidates or len(set(candidates)) < len(candidates):
         raise RecipeError("candidates must be a list of distinct stages or stage means")
@@ -200,7 +237,7 @@ def _parse(data: dict, path: Path, text: str) -> Recipe:
                             tuple(teams), _number(table, "scenarios", "validation"),
                             _number(table, "steps", "validation"))
     return Recipe(path, text, data["preset"], _number(data, "budget_cpu_hours", "recipe", float, 0),
-                  tuple(stages), tuple(candidates), validation)
+                  tuple(stages), tuple(candidates), validation, switch, switch_names)
 
 
 def _reference(ref: str, stages: dict[str, Stage], where: str) -> None:
@@ -234,6 +271,13 @@ def _progress(checkpoint: Path) -> dict:
     return {"episode": progress["episode"], "cpu_seconds": progress.get("cpu_seconds", progress["seconds"])}
 
 
+def _held_identity(held: dict) -> str:
+    """A claim's identity; claims written before identities existed hold the recipe's text."""
+    if "identity" in held:
+        return held["identity"]
+    return _parse(tomllib.loads(held["text"]), Path(held["recipe"]), held["text"]).identity
+
+
 def _write_json(path: Path, data: dict) -> None:
     with atomic_open(path) as handle:
         handle.write(json.dumps(data, indent=2) + "\n")
@@ -258,9 +302,11 @@ class _Run:
         claim = run_dir / "recipe.json"  # a folder holds one run: a skipped or resumed stage is this recipe's
         held = json.loads(claim.read_text()) if claim.exists() else None
         if held is None:
-            _write_json(claim, {"recipe": str(recipe.source), "seed": seed, "text": recipe.text})
-        elif (held["seed"], held["text"]) != (seed, recipe.text):
-            raise RecipeError(f"{run_dir} holds a run of another recipe or seed ({claim}): use a new --run-dir")
+            _write_json(claim, {"recipe": str(recipe.source), "seed": seed, "switch": recipe.switch,
+                                "identity": recipe.identity, "text": recipe.text})
+        elif (held["seed"], _held_identity(held)) != (seed, recipe.identity):
+            raise RecipeError(f"{run_dir} holds a run of another recipe, switch or seed ({claim}): "
+                              "use a new --run-dir")
 
     def budget(self, episodes: int, cpu_seconds: float) -> str:
         hours, budget = cpu_seconds / 3600, self.recipe.budget_cpu_hours
@@ -332,13 +378,16 @@ class _Run:
         v, folder = self.recipe.validation, self.run_dir / "validation"
         grid = settings_grid([v.size], v.teams, [0.0], ["infinite"], v.steps)
         matrix = generate_matrix(grid, v.scenarios, v.seed, folder / "scenarios")
-        scores = {name: self.validate(matrix, weights_file(self.run_dir, name), folder / name)
+        # a model trained without pheromones is tested without them too (the paper's Table I row)
+        blind = not self.trains_with_pheromones()
+        scores = {name: self.validate(matrix, weights_file(self.run_dir, name), folder / name, no_pheromones=blind)
                   for name in self.recipe.candidates}
         chosen = max(self.recipe.candidates, key=lambda name: scores[name]["food_mean"])
         model = self.run_dir / "model.pt"
         with atomic_open(model, "wb") as handle:
             handle.write(weights_file(self.run_dir, chosen).read_bytes())
-        empty = self.validate(matrix, model, folder / f"{chosen}-channel-empty", no_pheromones=True)
+        empty = (scores[chosen] if blind else
+                 self.validate(matrix, model, folder / f"{chosen}-channel-empty", no_pheromones=True))
         sampled = scores[chosen]["food_by_team"]
         less = {n: 1 - empty["food_by_team"][n] / sampled[n] if sampled[n] else 0.0 for n in sampled}
         _write_json(self.run_dir / "selection.json", {
@@ -354,6 +403,13 @@ class _Run:
             self.echo(f"  {n:4d}  {sampled[n]:8.1f}  {empty['food_by_team'][n]:8.1f}  {less[n]:5.0%}")
         self.echo(self.budget(self.recipe.episodes, self.cpu_seconds))
         return model
+
+    def trains_with_pheromones(self) -> bool:
+        """Whether the recipe's agents see the pheromone channel (every stage does the same)."""
+        seen = {stage_config(self.recipe, i, self.run_dir, self.seed).pheromones for i in range(len(self.recipe.stages))}
+        if len(seen) > 1:
+            raise RecipeError("stages differ in `pheromones`: the validation cannot test them alike")
+        return seen.pop()
 
     def validate(self, matrix: dict, model: Path, out: Path, no_pheromones: bool = False) -> dict:
         """``model`` on the validation scenarios (episodes kept in ``out``, reused when there).
