@@ -228,11 +228,13 @@ def test_no_pheromones_and_greedy_apply_to_the_learned_policy_only(tmp_path, mon
 
     import formic_runtime.episode
     import formic_runtime.registry
-    from formic_baselines.random_policy import RandomPolicy
+    from formic_agent.learned import LearnedPolicy
+    from formic_agent.network import NETWORK_PRESETS, ForMICNet
 
     seen = []
     real = formic_runtime.episode.run_episode
-    monkeypatch.setattr(formic_runtime.registry, "make_policy", lambda name, model=None, greedy=False: RandomPolicy())
+    untrained = LearnedPolicy(ForMICNet(NETWORK_PRESETS["cpu"]))  # "m.pt" does not exist: a fresh network
+    monkeypatch.setattr(formic_runtime.registry, "make_policy", lambda name, model=None, greedy=False: untrained)
 
     def spy(scenario, *args, **kwargs):
         seen.append(scenario.config.pheromones_visible)
