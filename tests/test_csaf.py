@@ -249,15 +249,56 @@ def test_reference_ties_go_north_east_south_west():
 
     n, e, s, w = (2, 3), (3, 4), (4, 3), (3, 2)
     ref = CSAFPolicy(reference=True)
-    assert first_move(ref, [n, e, s, w]) == NORTH
-    assert first_move(ref, [e, s, w]) == EAST
-    assert first_move(ref, [w, s]) == SOUTH
-    assert {first_move(ref, [n, e, s, w], seed) for seed in range(8)} == {NORTH}
+    # The reference breaks a tie of the two weakest free marks by the move best aligned with
+    # the way to the world's centre (7.5, 7.5): south and east are equally good, east first.
+    assert first_move(ref, [n, e, s, w]) == EAST
+    assert first_move(ref, [w, s]) == EAST  # even where that cell is not marked
+    assert first_move(ref, [n, w]) == EAST
+    assert first_move(ref, [w, s, e]) == EAST
+    assert {first_move(ref, [n, e, s, w], seed) for seed in range(8)} == {EAST}
     assert len({first_move(CSAFPolicy(), [n, e, s, w], seed) for seed in range(8)}) > 1
     # Diagonal offsets: the two moves towards the nest in N, E, S, W order.
     for cell, move in (((2, 2), EAST), ((13, 13), NORTH), ((2, 13), SOUTH), ((13, 2), NORTH)):
         ref.reset(1, seed=0)
         assert act_for(ref, build_world([agent(*cell, loaded=True)]))[0] == move
+
+
+def test_reference_descent_goes_round_an_agent_on_the_oldest_mark():
+    # Issue 25: the port's reference variant waited behind an agent standing on the oldest
+    # marked neighbour (a climber coming up the trail the other way, which waits too: the
+    # team's gridlock at the nest). The authors' code takes the oldest marked neighbour no
+    # agent stands on, never straight back. Loaded agent 0 at (3,3) (marked at step 2):
+    # south (4,3) marked at step 1 holds agent 1, east (3,4) at step 4, west (3,2) at step 6;
+    # then from (3,4), south (4,4) at step 3 and west (3,3), the way back, is the oldest.
+    def run(policy, steps):
+        policy.reset(2, seed=0)
+        policy.ground = PheromoneGround((16, 16), policy.search_decay)
+        for cell, at in (((3, 3), 2), ((4, 3), 1), ((3, 4), 4), ((3, 2), 6), ((4, 4), 3)):
+            policy.ground.marked_at[cell] = at
+        world = build_world([agent(3, 3, loaded=True), agent(4, 3)])
+        return drive_one(policy, world, steps), cells_of(world, 0)
+
+    assert run(CSAFPolicy(reference=True), 2) == ([EAST, SOUTH], (4, 4))
+    assert run(CSAF11Policy(reference=True), 2) == ([EAST, SOUTH], (4, 4))
+    # The earlier port descended only to marks older than any reached on this trip: it
+    # retried the taken cell for as long as agent 1 stood there.
+    policy = CSAFPolicy(reference=True)
+    policy._descend_reference = policy._descend
+    assert run(policy, 4) == ([SOUTH] * 4, (3, 3))
+
+
+def test_reference_loaded_agent_scans_for_no_cache_entry():
+    # Four agents fill the NE cache queue up to (3,8): its entry is (2,8). A loaded agent at
+    # (2,12), nothing marked: C-SAF-11 heads west for the entry's neighbour (2,9) in its view;
+    # the reference, as the authors' C-SAF-11 (whose only scan is for resources), goes home
+    # (south, the larger offset) and joins only where JOIN is valid.
+    def first_move(policy):
+        queued = [agent(r, 8, True, 1) for r in (6, 5, 4, 3)]
+        policy.reset(5, seed=0)
+        return act_for(policy, build_world(queued + [agent(2, 12, loaded=True)]), ids=(4,))[0]
+
+    assert first_move(CSAF11Policy()) == WEST
+    assert first_move(CSAF11Policy(reference=True)) == SOUTH
 
 
 def test_reference_search_fallback_ignores_agents():

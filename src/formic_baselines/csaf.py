@@ -166,7 +166,7 @@ class CSAFPolicy(Policy):
 
     # ---------------------------------------------------------------- lifecycle
     _MEMORY = ("state", "heading", "free_load", "queued_since", "trail_key", "colouring", "hops",
-               "last_pos", "counter", "went_out", "floor")
+               "last_pos", "counter", "went_out", "floor", "last_action")
 
     def reset(self, n_agents: int, seed: int) -> None:
         self.rng = np.random.default_rng([seed, 13])
@@ -175,6 +175,7 @@ class CSAFPolicy(Policy):
         self._writes: list[tuple] = []  # marks laid this step, landing at the next one
         self._blackout_steps: int | None = None  # a wipe() waiting for its first step
         self.radius = self.view // 2  # how far queue entries are looked for
+        self._noop = False  # the reference's no-op: the agent's next step has no way back
         self._allocate(n_agents)
 
     def forget(self, agent_ids: np.ndarray) -> None:
@@ -203,6 +204,7 @@ class CSAFPolicy(Policy):
         self.counter = np.zeros(n, dtype=np.int64)  # steps spent looking for a trail
         self.went_out = np.zeros(n, dtype=bool)  # last orbit move stepped away from the nest
         self.floor = np.full(n, _NEVER, dtype=np.int64)  # oldest search mark reached this trip
+        self.last_action = np.full(n, JOIN, dtype=np.int64)  # the reference's prev_action (JOIN: none)
 
     def _grow(self, n: int) -> None:
         """Agent ids beyond those given to :meth:`reset` start with fresh memory."""
@@ -241,9 +243,11 @@ class CSAFPolicy(Policy):
                 self.queued_since[i] = True
                 continue
             self._update_state(agent, float(batch.loads[k]))
+            self._noop = False
             actions[k] = self._decide(agent)
             if actions[k] < 4:
                 self.heading[i] = actions[k]
+            self.last_action[i] = JOIN if self._noop else actions[k]
         if self.step < self.ground.blackout_until:
             self._writes.clear()  # nothing is laid during a wipeout
         return actions
@@ -400,12 +404,13 @@ class CSAFPolicy(Policy):
             self._writes.append(("colour", int(self.trail_key[i]), a.row, a.col, int(self.hops[i])))
         if a.join_ok:
             return JOIN
-        entries = a.nearest(CH_CACHE_ENTRY, self.radius)
+        # The reference's loaded agents scan for no cache entry: they join where JOIN is valid.
+        entries = [] if self.reference else a.nearest(CH_CACHE_ENTRY, self.radius)
         if entries:
             return self._toward(a, *self._choose(entries, _clockwise))
         if self.state[i] == RETURN:
             if self._ring(a.row, a.col) > self.nest_radius and not a.sees(CH_CACHE_QUEUED):
-                return self._descend(a)
+                return self._descend_reference(a) if self.reference else self._descend(a)
             self.state[i] = ORBIT
             self.colouring[i] = False
             self.went_out[i] = False
@@ -427,6 +432,36 @@ class CSAFPolicy(Policy):
         if lower:
             return self._retry(a, lower, stamps) if self.reference else self._sidestep(a)
         return self._home(a)
+
+    def _descend_reference(self, a: _Agent) -> int:
+        """The reference's way home: to the neighbour with the oldest mark (the weakest
+        search pheromone) among the marked ones other than straight back (the move opposite
+        to its last action, none after a JOIN or a no-op), the first of them no agent stands
+        on; when the two weakest free ones are equal, the move towards the nest centre
+        instead. All taken: wait for the weakest. Nothing marked but the way back: a no-op
+        (the way back is allowed next step); nothing marked at all: straight home."""
+        i = a.i
+        stamps = a.around(self.ground.marked_at, -1)
+        last = int(self.last_action[i])
+        back = (last + 2) % 4 if last < 4 else -1
+        marked = sorted((d for d in range(4) if stamps[d] >= 0 and d != back), key=lambda d: (stamps[d], d))
+        free = [d for d in marked if a.valid[d]]
+        if free:
+            if len(free) > 1 and stamps[free[0]] == stamps[free[1]]:
+                return self._nest_vector_move(a)
+            return free[0]
+        if marked:
+            return marked[0]  # taken (or a wall): the move fails and the agent waits
+        if back >= 0 and stamps[back] >= 0:
+            self._noop = True
+            return a.stay()
+        return self._home(a)
+
+    def _nest_vector_move(self, a: _Agent) -> int:
+        """The reference's move best aligned with the vector to the world's centre
+        ((H-1)/2, (W-1)/2), ties N, E, S, W; it may be a wall or taken (then it fails)."""
+        dr, dc = (a.height - 1) / 2 - a.row, (a.width - 1) / 2 - a.col
+        return int(np.argmax([-dr, dc, dr, -dc]))
 
     def _home(self, a: _Agent) -> int:
         """One step straight towards the nest (odometry)."""
