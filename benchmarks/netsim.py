@@ -12,7 +12,8 @@ Test and benchmark infrastructure, not part of the package. Use only for tests a
         subprocess.run(link.exec_in("a") + ["python", "-c", "..."])   # address link.addr("a")
 
 or from a shell: ``python benchmarks/netsim.py forward IF1 IF2 --delay-ms 20 --loss 0.02``
-(inside the router namespace).
+(inside the router namespace). ``bench`` measures lockstep across such a link,
+``train`` distributed training (:func:`training_across_link`).
 """
 
 from __future__ import annotations
@@ -185,6 +186,37 @@ def _json_line(text: str) -> dict:
     raise ValueError(f"no JSON line in:\n{text[-3000:]}")
 
 
+def _link_environments(link: Link, domain_id: int, fastdds_defaults: bool, workdir: str) -> tuple[dict, dict]:
+    """The two sides' environments: multi-host DDS on UDPv4 only (no shared memory between
+    namespaces of one host), each naming the other in ``ROS_STATIC_PEERS``. ``fastdds_defaults``:
+    an empty user profile (Fast DDS's own settings) instead of the shipped one."""
+    from formic_ros.env import ros_environment
+
+    base = dict(os.environ, FASTDDS_BUILTIN_TRANSPORTS="UDPv4", FORMIC_DDS_NETWORK="hosts",
+                ROS_AUTOMATIC_DISCOVERY_RANGE="SUBNET", _FORMIC_HOSTS_WARNED="1")
+    base.pop("FASTRTPS_DEFAULT_PROFILES_FILE", None)
+    base.pop("FASTDDS_DEFAULT_PROFILES_FILE", None)
+    if fastdds_defaults:
+        path = os.path.join(workdir, f"{link.prefix}_empty_profile.xml")
+        with open(path, "w") as fh:
+            fh.write(EMPTY_PROFILE)
+        base["FASTRTPS_DEFAULT_PROFILES_FILE"] = path
+    return (ros_environment(domain_id, dict(base, ROS_STATIC_PEERS=link.addr("b"))),
+            ros_environment(domain_id, dict(base, ROS_STATIC_PEERS=link.addr("a"))))
+
+
+def _kill_all(procs: list[subprocess.Popen]) -> None:
+    for p in procs:
+        try:
+            os.killpg(p.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+        p.wait(timeout=10)
+
+
+FORMIC = [sys.executable, "-m", "formic_cli.main"]
+
+
 def lockstep_across_link(agents: int = 16, steps: int = 60, size: int = 32, seed: int = 0,
                          delay_ms: float = 20.0, loss: float = 0.02, link_seed: int = 1,
                          fastdds_defaults: bool = False, domain_id: int = 147, prefix: str = "fxl",
@@ -192,33 +224,19 @@ def lockstep_across_link(agents: int = 16, steps: int = 60, size: int = 32, seed
     """``formic world`` in namespace a, ``formic agents`` (per-agent, learned ``formic``) in b,
     lockstep over a link with ``delay_ms`` each way and ``loss``; returns the world's JSON
     summary plus ``link``. ``fastdds_defaults``: an empty user profile (Fast DDS's own 3 s
-    heartbeat) instead of the shipped one. Both sides use UDPv4 only (no shared memory between
-    namespaces of one host) and name each other in ``ROS_STATIC_PEERS``."""
-    from formic_ros.env import ros_environment
-
+    heartbeat) instead of the shipped one."""
     world_args = ["--agents", str(agents), "--size", str(size), "--steps", str(steps), "--seed", str(seed)]
     with Link(prefix, delay_ms=delay_ms, loss=loss, seed=link_seed) as link:
-        base = dict(os.environ, FASTDDS_BUILTIN_TRANSPORTS="UDPv4", FORMIC_DDS_NETWORK="hosts",
-                    ROS_AUTOMATIC_DISCOVERY_RANGE="SUBNET", _FORMIC_HOSTS_WARNED="1")
-        base.pop("FASTRTPS_DEFAULT_PROFILES_FILE", None)
-        base.pop("FASTDDS_DEFAULT_PROFILES_FILE", None)
-        if fastdds_defaults:
-            path = os.path.join(workdir, f"{prefix}_empty_profile.xml")
-            with open(path, "w") as fh:
-                fh.write(EMPTY_PROFILE)
-            base["FASTRTPS_DEFAULT_PROFILES_FILE"] = path
-        env_a = ros_environment(domain_id, dict(base, ROS_STATIC_PEERS=link.addr("b")))
-        env_b = ros_environment(domain_id, dict(base, ROS_STATIC_PEERS=link.addr("a")))
-        formic = [sys.executable, "-m", "formic_cli.main"]
+        env_a, env_b = _link_environments(link, domain_id, fastdds_defaults, workdir)
         procs = []
         try:
             logs = [open(os.path.join(workdir, f"{prefix}_{side}.log"), "w+") for side in "ab"]
             started = time.monotonic()
-            world = subprocess.Popen(link.exec_in("a") + formic + ["world", *world_args, "--json",
+            world = subprocess.Popen(link.exec_in("a") + FORMIC + ["world", *world_args, "--json",
                                                                   "--startup-timeout", str(limit_s / 2)],
                                      env=env_a, stdout=logs[0], stderr=subprocess.STDOUT, start_new_session=True)
             procs.append(world)
-            host = subprocess.Popen(link.exec_in("b") + formic + ["agents", "--ids", f"0-{agents - 1}",
+            host = subprocess.Popen(link.exec_in("b") + FORMIC + ["agents", "--ids", f"0-{agents - 1}",
                                                                  "--policy", "formic", "--once"],
                                     env=env_b, stdout=logs[1], stderr=subprocess.STDOUT, start_new_session=True)
             procs.append(host)
@@ -231,12 +249,86 @@ def lockstep_across_link(agents: int = 16, steps: int = 60, size: int = 32, seed
                                "wall_s": round(elapsed, 1)}
             return summary
         finally:
-            for p in procs:
+            _kill_all(procs)
+
+
+def _json_lines(text: str) -> list[dict]:
+    import json
+
+    return [json.loads(line) for line in text.splitlines() if line.startswith("{")]
+
+
+def link_training_config(agents: int = 16, size: int = 32, steps: int = 128, seed: int = 0):
+    """The training configuration :func:`training_across_link` runs: the cpu preset (128-step
+    rollouts), one team of ``agents`` on a ``size`` square, ``steps``-step episodes."""
+    from formic_trainer.config import make_config
+
+    return make_config("cpu", seed=seed, teams=(agents,), world_sizes=((size, size),), episode_steps=steps)
+
+
+def training_across_link(episodes: int = 10, agents: int = 16, size: int = 32, steps: int = 128, seed: int = 0,
+                         delay_ms: float = 20.0, loss: float = 0.02, link_seed: int = 1,
+                         fastdds_defaults: bool = False, domain_id: int = 148, prefix: str = "fxt",
+                         net: int = 216, limit_s: float = 300.0, workdir: str = "/tmp") -> dict:
+    """``formic train-ros``'s three nodes split over a link with ``delay_ms`` each way and
+    ``loss``, started by hand as docs/ros.md shows: ``formic trainer`` and ``formic world
+    --train-config`` in namespace a, ``formic agents --train-config`` (the whole team, batched)
+    in b, ``episodes`` episodes of :func:`link_training_config`. Returns the world's episode
+    summaries, the trainer's result,
+    ``episodes_per_s`` (episodes after the first over their wall time, start-up excluded) and
+    ``link``; the logs stay in ``workdir``."""
+    import json
+    import math
+
+    cfg = link_training_config(agents, size, steps, seed)
+    config_file = os.path.join(workdir, f"{prefix}_config.json")
+    with open(config_file, "w") as fh:
+        json.dump(cfg.to_dict(), fh)
+    rollouts = episodes * math.ceil(steps / cfg.rollout_steps)
+    train = ["--train-config", config_file]
+    commands = {
+        "trainer": ("a", ["trainer", *train, "--run-dir", os.path.join(workdir, f"{prefix}_run"), "--fresh",
+                          "--max-rollouts", str(rollouts), "--json"]),
+        "world": ("a", ["world", *train, "--episodes", str(episodes), "--deadline-ms", "120000",
+                        "--startup-timeout", str(limit_s / 2), "--json"]),
+        "host": ("b", ["agents", "--ids", f"0-{agents - 1}", "--transport", "batched", *train,
+                       "--episodes", str(episodes)]),
+    }
+    with Link(prefix, delay_ms=delay_ms, loss=loss, seed=link_seed, net=net) as link:
+        envs = dict(zip("ab", _link_environments(link, domain_id, fastdds_defaults, workdir)))
+        procs: dict[str, subprocess.Popen] = {}
+        logs = {name: open(os.path.join(workdir, f"{prefix}_{name}.log"), "w+") for name in commands}
+        try:
+            started = time.monotonic()
+            for name, (side, args) in commands.items():
+                procs[name] = subprocess.Popen(link.exec_in(side) + FORMIC + args, env=envs[side], stdout=logs[name],
+                                               stderr=subprocess.STDOUT, start_new_session=True)
+            end = started + limit_s
+            for name in ("world", "trainer"):
                 try:
-                    os.killpg(p.pid, signal.SIGKILL)
-                except ProcessLookupError:
-                    pass
-                p.wait(timeout=10)
+                    procs[name].wait(timeout=max(1.0, end - time.monotonic()))
+                except subprocess.TimeoutExpired:
+                    break
+            elapsed = time.monotonic() - started
+            for log in logs.values():
+                log.seek(0)
+            texts = {name: log.read() for name, log in logs.items()}
+            summaries = _json_lines(texts["world"])
+            trainer = _json_lines(texts["trainer"])
+            later = [s["wall_s"] for s in summaries[1:]]
+            return {
+                "episodes": [{k: s.get(k) for k in ("episode", "food", "steps_per_s", "missed_actions", "wall_s")}
+                             for s in summaries],
+                "trainer": trainer[-1] if trainer else None,
+                "episodes_per_s": len(later) / sum(later) if later else 0.0,
+                "exit_codes": {name: p.poll() for name, p in procs.items()},
+                "link": {"delay_ms": delay_ms, "loss": loss, "seed": link_seed,
+                         "profile": "fastdds-defaults" if fastdds_defaults else "formic", "wall_s": round(elapsed, 1)},
+            }
+        finally:
+            _kill_all(list(procs.values()))
+            for log in logs.values():
+                log.close()
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -255,7 +347,22 @@ def main(argv: list[str] | None = None) -> int:
     b.add_argument("--delay-ms", type=float, default=20.0)
     b.add_argument("--loss", type=float, default=0.02)
     b.add_argument("--fastdds-defaults", action="store_true", help="Fast DDS's own settings (3 s heartbeat)")
+    t = sub.add_parser("train", help="trainer + training world | learning host across a lossy link (root)")
+    t.add_argument("--episodes", type=int, default=10)
+    t.add_argument("--agents", type=int, default=16)
+    t.add_argument("--steps", type=int, default=128)
+    t.add_argument("--delay-ms", type=float, default=20.0)
+    t.add_argument("--loss", type=float, default=0.02)
+    t.add_argument("--fastdds-defaults", action="store_true", help="Fast DDS's own settings")
+    t.add_argument("--workdir", default="/tmp", help="logs and the run directory go here")
     args = parser.parse_args(argv)
+    if args.command == "train":
+        import json
+
+        print(json.dumps(training_across_link(args.episodes, args.agents, steps=args.steps, delay_ms=args.delay_ms,
+                                              loss=args.loss, fastdds_defaults=args.fastdds_defaults,
+                                              workdir=args.workdir)))
+        return 0
     if args.command == "bench":
         import json
 

@@ -34,6 +34,8 @@ def test_environment_carries_the_shipped_profile():
     # a child that changes the transports or the network mode gets the matching shipped file
     again = ros_env.ros_environment(5, dict(env, FORMIC_DDS_NETWORK="hosts"))
     assert again["FASTRTPS_DEFAULT_PROFILES_FILE"] == str(ros_env.PROFILES["hosts"])
+    hosts_udp = ros_env.ros_environment(5, dict(udp, FORMIC_DDS_NETWORK="hosts"))
+    assert hosts_udp["FASTRTPS_DEFAULT_PROFILES_FILE"] == str(ros_env.PROFILES["hosts_udp"])
     # the user's own profile wins
     mine = ros_env.ros_environment(5, _clean(FASTRTPS_DEFAULT_PROFILES_FILE="/etc/my.xml"))
     assert mine["FASTRTPS_DEFAULT_PROFILES_FILE"] == "/etc/my.xml"
@@ -49,11 +51,12 @@ def test_profiles_parse_bind_loopback_and_beat_fast():
         assert periods and periods[0].findtext(f"{NS}sec") == "0"
         assert int(periods[0].findtext(f"{NS}nanosec")) <= 100_000_000
         allow = [i.get("name") for i in root.iter(f"{NS}interface")]
-        if name.startswith("loopback"):
-            assert allow == ["lo"]
-            assert root.find(f".//{NS}useBuiltinTransports").text == "false"
-        else:
-            assert allow == [] and root.find(f".//{NS}transport_descriptors") is None
+        assert allow == (["lo"] if name.startswith("loopback") else []), name
+        assert root.find(f".//{NS}useBuiltinTransports").text == "false"
+        kinds = [t.findtext(f"{NS}type") for t in root.iter(f"{NS}transport_descriptor")]
+        assert kinds == (["UDPv4"] if name.endswith("_udp") else ["UDPv4", "SHM"]), name
+        if name.startswith("hosts"):  # across machines: one datagram fits a 1500-byte MTU, IP never fragments
+            assert int(root.findtext(f".//{NS}maxMessageSize")) <= 1500 - 28
 
 
 def test_hosts_mode_warns_once(capsys, monkeypatch):

@@ -15,8 +15,8 @@ A block's language tag decides its check (an untagged block fails: tag it):
   saves from a marked block (:data:`SAVED_FROM_BLOCKS`): that block must be in the same file.
 - ``python``: run as written in a subprocess (the venv's python, a fresh working directory, a
   timeout); every block is self-contained. A block right after
-  ``<!-- docs-test: robot-snippet -->`` needs a running world and has an end-to-end test of its
-  own: skipped here.
+  ``<!-- docs-test: robot-snippet -->`` or ``<!-- docs-test: sim-client -->`` needs a running
+  world and has an end-to-end test of its own: skipped here.
 - ``json``: parses.
 - ``text``: a program's output, equal to what the code prints (:data:`OUTPUTS`), or a file
   layout whose every listed path exists.
@@ -61,8 +61,9 @@ FORMIC = str(Path(sys.executable).with_name("formic"))  # its console script: th
 FORMIC_NAMES = {"formic", ".venv/bin/formic"}
 PYTHON_NAMES = {"python", "python3", ".venv/bin/python"}
 SHELL_TAGS = {"bash", "sh"}
-SKIP_MARKERS = {"robot-snippet": "needs a running world: tests/test_ownership.py::test_the_readme_robot_program_drives_its_external_agent runs it as written"}
-SAVED_FROM_BLOCKS = {"robot_agent.py": "robot-snippet"}  # a program the reader saves -> its block's marker
+SKIP_MARKERS = {"robot-snippet": "needs a running world: tests/test_ownership.py::test_the_readme_robot_program_drives_its_external_agent runs it as written",
+                "sim-client": "needs a running world: tests/test_sim_control.py::test_the_docs_client_example_drives_a_paused_world runs it as written"}
+SAVED_FROM_BLOCKS = {"robot_agent.py": "robot-snippet", "sim_client.py": "sim-client"}  # a program the reader saves -> its block's marker
 OUTPUTS = {"live view:": lambda: announcement(address(DEFAULT_HOST, DEFAULT_PORT))}  # first words -> printer
 SCRIPT_DIRS = ("scripts/", "examples/", "benchmarks/")
 OPERATORS = {"&", "&&", ";", "||"}

@@ -113,7 +113,11 @@ SAMPLES = {
         done=True,
         food=42.0,
         agent_ids=array.array("I", [0, 1, 2]),
+        encoding=0,
         observations=f32((T + 1) * N * C * S * S),
+        nonzero_bits=u8(7),
+        one_bits=u8(3),
+        other_values=f32(5, 0.5),
         extra_inputs=f32((T + 1) * N * 10, 0.25),
         actions=u8(T * N, 5),
         logprobs=f32(T * N, -0.125),
@@ -134,6 +138,34 @@ SAMPLES = {
         model_config_json='{"hidden": 64}',
         checkpoint_id="ckpt-000005",
         data=bytes(range(256)) * 64,
+    ),
+    "RobotGoal": dict(
+        agent_id=29,
+        step=-1,
+        attempt=2,
+        rows=array.array("i", [4, 3]),
+        cols=array.array("i", [7, 7]),
+        xs=array.array("d", [3.75, 3.75]),
+        ys=array.array("d", [13.75, 14.25]),
+        tolerance=0.1,
+        timeout_s=2.5,
+        cell_size=0.5,
+        origin_x=-1.5,
+        origin_y=2.25,
+        height=32,
+        width=31,
+    ),
+    "RobotStatus": dict(
+        agent_id=29,
+        step=41,
+        attempt=1,
+        status=2,
+        row=-1,
+        col=-1,
+        x=3.7625,
+        y=-14.125,
+        yaw=-3.0,
+        distance=0.0625,
     ),
 }
 
@@ -232,10 +264,11 @@ def test_mcap_ros2_decodes_our_types():
 
 
 def test_observation_encodings():
-    """ObservationBatch names its encodings (formic_topics restates them for readers without ROS);
-    a message that only fills ``data`` is float32."""
+    """ObservationBatch and Rollout name the same encodings (formic_topics restates them for readers
+    without ROS); a message that only fills its float32 field is float32."""
     import formic_topics
 
-    assert (msg_mod.ObservationBatch.ENCODING_FLOAT32, msg_mod.ObservationBatch.ENCODING_COMPACT) == (
-        formic_topics.ENCODING_FLOAT32, formic_topics.ENCODING_COMPACT) == (0, 1)
-    assert msg_mod.ObservationBatch().encoding == msg_mod.ObservationBatch.ENCODING_FLOAT32
+    for cls in (msg_mod.ObservationBatch, msg_mod.Rollout):
+        assert (cls.ENCODING_FLOAT32, cls.ENCODING_COMPACT) == (
+            formic_topics.ENCODING_FLOAT32, formic_topics.ENCODING_COMPACT) == (0, 1)
+        assert cls().encoding == cls.ENCODING_FLOAT32

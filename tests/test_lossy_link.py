@@ -1,8 +1,9 @@
-"""Lockstep across a lossy link: the world in one network namespace, 16 per-agent learned
-agents in another, joined by a userspace forwarder adding 20 ms delay each way and dropping 2%
-of packets (seeded). With the shipped Fast DDS profile (50 ms heartbeat) a lost sample is
-repaired long before the 1 s deadline (Fast DDS's default 3 s heartbeat gave ~1.1 steps/s and
-~67% missed actions here). Needs root and ``ip netns``; skipped elsewhere."""
+"""Lockstep and training across a lossy link: two network namespaces joined by a userspace
+forwarder adding 20 ms delay each way and dropping 2% of packets (seeded). With the shipped
+Fast DDS profile (50 ms heartbeat) a lost sample is repaired long before the 1 s deadline (Fast
+DDS's default 3 s heartbeat gave ~1.1 steps/s and ~67% missed actions here), and rollouts and
+weights (compact observations, datagrams below the MTU) cross the link. Needs root and
+``ip netns``; skipped elsewhere."""
 
 import json
 import subprocess
@@ -10,7 +11,8 @@ import sys
 
 import pytest
 
-from benchmarks.netsim import lockstep_across_link, namespaces_available
+from benchmarks.netsim import (link_training_config, lockstep_across_link, namespaces_available,
+                               training_across_link)
 
 pytestmark = pytest.mark.skipif(not namespaces_available(), reason="cannot create network namespaces")
 
@@ -29,3 +31,25 @@ def test_lockstep_survives_lossy_link(tmp_path):
                               "--steps", "60", "--seed", "0", "--json", "--out", str(tmp_path / "sim")],
                              capture_output=True, text=True, timeout=120, check=True)
         assert json.loads(sim.stdout.strip().splitlines()[-1])["state_digest"] == summary["state_digest"]
+
+
+def test_training_crosses_a_lossy_link(tmp_path):
+    """`formic train-ros`'s nodes split as a user would (trainer and training world in one
+    namespace, the learning host in the other): every rollout arrives and is learned, none
+    dropped, and the learning curve is `formic train`'s. Three episodes here; the 10-episode
+    figures (clean and lossy episode rates) are `sudo .venv/bin/python benchmarks/netsim.py train`
+    (docs/ros.md)."""
+    pytest.importorskip("rclpy")
+    pytest.importorskip("torch")
+    from formic_trainer.train import Trainer
+
+    episodes = 3
+    result = training_across_link(episodes=episodes, delay_ms=20, loss=0.02, prefix="fxtt", net=217, limit_s=240,
+                                  workdir=str(tmp_path))
+    assert result["exit_codes"] == {"trainer": 0, "world": 0, "host": 0}, result
+    assert (result["trainer"]["updates"], result["trainer"]["dropped"]) == (episodes, 0), result
+    assert [e["missed_actions"] for e in result["episodes"]] == [0] * episodes, result
+    trainer = Trainer(link_training_config(), tmp_path / "in_process", resume=False, log=lambda _text: None)
+    food = [trainer.run_episode_set()["food_env0"] for _ in range(episodes)]
+    trainer.close()
+    assert [e["food"] for e in result["episodes"]] == food, result

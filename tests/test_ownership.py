@@ -286,3 +286,7 @@ def test_nobody_joined_names_the_refused_claimant(monkeypatch):
                                            r"own drivers \(/formic/agent_host_0\) drive \(--external: 3\)"):
         lockstep.await_actions(Executor(), resend=lambda missing: None, started=time.monotonic(), tick=0.0)
     assert np.array_equal(lockstep.inbox.received, np.zeros(4, dtype=bool))
+    # a driver whose claim counts and that stays silent is named too, and whether it is still there
+    assert "/formic/early_bird claimed agents but did not answer (it has left the graph)" in world.why_nobody_answered()
+    node.names = [("early_bird", "/formic")]
+    assert world.why_nobody_answered().endswith("/formic/early_bird claimed agents but did not answer")

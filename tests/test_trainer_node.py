@@ -205,3 +205,44 @@ def read_bytes_of_other_network() -> bytes:
     from formic_agent.network import NETWORK_PRESETS, ForMICNet
 
     return state_dict_bytes(ForMICNet(NETWORK_PRESETS["cpu-nest"]))
+
+
+def test_trainer_and_host_name_the_peer_they_wait_for(tmp_path, monkeypatch):
+    """A host waiting for weights names the trainer (or that none publishes them); a trainer that
+    hears no rollout for SILENCE_S names the hosts that publish rollouts (issue: a rollout lost
+    between machines showed only as the world's "check discovery" after 60 s)."""
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+
+    from formic_ros import trainer_node
+    from formic_ros.graph import publishers_of
+    from formic_ros.learning_host import LearningHost
+
+    rclpy.init(domain_id=DOMAIN_ID)
+    executor = SingleThreadedExecutor()
+    try:
+        host = LearningHost([0, 1, 2, 3], CFG, name="agent_host_9")
+        executor.add_node(host.control)
+        assert "no trainer publishes on /formic/weights" in host.weights_wait_report()
+        node = TrainerNode(Learner(CFG, tmp_path / "run", resume=False, log=quiet))
+        executor.add_node(node)
+        deadline = time.monotonic() + 20
+        while time.monotonic() < deadline and not (publishers_of(host.control, "/formic/weights")
+                                                   and publishers_of(node, "/formic/rollouts")):
+            executor.spin_once(timeout_sec=0.1)
+        host.newest = None  # as if the weights were lost on the way
+        assert "for weights newer than version -1 from /formic/trainer: none has arrived" in host.weights_wait_report()
+        said = []
+        logger = type("Logger", (), {"warning": lambda _self, text: said.append(text)})()
+        monkeypatch.setattr(node, "get_logger", lambda: logger)
+        node.report_silence()
+        assert said == []  # not yet
+        node.heard_at -= trainer_node.SILENCE_S + 1
+        node.report_silence()
+        node.report_silence()  # once; again only after twice as long
+        assert len(said) == 1 and said[0].startswith("no rollout for 11 s from /formic/agent_host_9 "
+                                                     "(publishing on /formic/rollouts)"), said
+        node.learner.close()
+    finally:
+        executor.shutdown()
+        rclpy.shutdown()

@@ -14,6 +14,7 @@ from .options import (WORLD_OPTION_NAMES, domain_option, fresh_option, greedy_op
                       json_option, model_option, option_group, preset_option, ros_options, ros_run_dir_option,
                       scenario_from, team_options, train_config_option, training_config, view_options,
                       world_options)
+from .robot_commands import robot, robot_run_options, robots_sim, run_robot_options, world_robot_options
 from .summary import click_errors, emit, emit_json, print_episode_summary
 
 TRANSPORT = click.Choice(["per-agent", "batched"])
@@ -91,14 +92,16 @@ def _stop_signals_as_interrupt() -> None:
 @lockstep_options()
 @launch_options
 @view_options(wait=False)
+@run_robot_options
 @json_option()
 def run(scenario_file, external, live_view, view_port, as_json, **fields) -> None:
     """The main job: world, agent hosts (or the planner) and recorder as separate ROS processes."""
     from formic_ros.launcher import RunOptions, launch
 
     _stop_signals_as_interrupt()
+    robots = robot_run_options(fields)  # --robots and the rest (docs/robots.md)
     scenario = scenario_from(scenario_file, fields)  # takes the world options out: RunOptions' fields remain
-    options = RunOptions(scenario=scenario, external=_parse_external(external), **fields,
+    options = RunOptions(scenario=scenario, external=_parse_external(external), robots=robots, **fields,
                          progress=not as_json and sys.stderr.isatty(),
                          view_port=view_port if live_view else None)
     if live_view:  # served by the world process (formic_view), announced here where the user looks
@@ -135,6 +138,13 @@ def run(scenario_file, external, live_view, view_port, as_json, **fields) -> Non
               help="Do not step before this many recorders (`formic record`) have matched every topic; "
                    "recorders already running when the world starts are waited for anyway.")
 @click.option("--stay", is_flag=True, help="Keep serving the latched scenario and summary after the episode.")
+@click.option("--paused", is_flag=True,
+              help="Start paused at step 0 for a simulation_interfaces client (play, step, reset: docs/ros.md) "
+                   "and stay up until it sets STATE_QUITTING.")
+@click.option("--cell-size", default=1.0, show_default=True,
+              help="Metres per cell in the map frame of the entity poses (simulation_interfaces).")
+@click.option("--origin-x", default=0.0, show_default=True, help="Map x of the grid's south-west corner (m).")
+@click.option("--origin-y", default=0.0, show_default=True, help="Map y of the grid's south-west corner (m).")
 @click.option("--allow-empty", is_flag=True,
               help="Step through the episode even when no agent answers step 0 (default: exit with an error).")
 @click.option("--train-config", type=click.Path(exists=True, dir_okay=False),
@@ -144,6 +154,7 @@ def run(scenario_file, external, live_view, view_port, as_json, **fields) -> Non
 @click.option("--first-episode", default=0, show_default=True,
               help="Training mode: global episode to start from (a resumed run's).")
 @click.option("--progress", is_flag=True, help="Show a progress bar on stderr.")
+@world_robot_options
 @view_options(wait=False)
 @json_option(help="Print the summary as one JSON line.")
 def world(scenario_file, domain_id, deadline_ms, stay, train_config, episodes, first_episode, live_view, view_port,
@@ -167,7 +178,8 @@ def world(scenario_file, domain_id, deadline_ms, stay, train_config, episodes, f
                                  on_episode=emit_json if as_json else _print_training_episode)
         else:
             serve_world(scenario_from(scenario_file, world_kw), options, domain_id=domain_id,
-                        on_summary=emit_json if as_json else _print_ros_summary, stay=stay)
+                        on_summary=emit_json if as_json else _print_ros_summary, stay=stay,
+                        scenario_file=scenario_file or "")
 
 
 @click.command()
@@ -287,7 +299,7 @@ def bench_ros(teams, transports, steps, size, repeats, domain_id, as_json) -> No
 
 
 def register(cli: click.Group) -> None:
-    for command in (run, world, agents, planner, train_ros):
+    for command in (run, world, agents, planner, train_ros, robot, robots_sim):
         cli.add_command(command)
     bench = cli.commands.get("bench")
     if isinstance(bench, click.Group):

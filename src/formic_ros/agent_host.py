@@ -39,6 +39,7 @@ from formic_world import Scenario
 
 from .lockstep import WorldLost
 from .ownership import Claim
+from .parameters import declare_settings
 from . import convert, qos
 
 TRANSPORTS = ("per-agent", "batched")
@@ -81,6 +82,8 @@ class AgentHost:
                 raise ValueError(f"{policy.name} needs the full world: it runs as its own node")
         self.transport = transport
         self.control = rclpy.create_node(name or f"agent_host_{os.getpid()}", namespace=namespace)
+        declare_settings(self.control, {"agent_ids": self.ids.tolist(), "policy": spec, "model": model,
+                                        "greedy": greedy, "transport": transport, "torch_threads": torch_threads})
         self.log = self.control.get_logger()
         self.nodes = [self.control]
         self.control.create_subscription(ScenarioDescription, topics.SCENARIO, self._on_scenario, qos.LATCHED)

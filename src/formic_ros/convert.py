@@ -26,7 +26,7 @@ from formic_trainer.rollout import Rollout
 from formic_world import Scenario, World
 from formic_world.geometry import N_ACTIONS
 
-from .wire import decode_observations, f32, i32, observation_fields, read, u8, u32
+from .wire import decode_encoded, decode_observations, f32, i32, observation_fields, read, u8, u32
 
 
 def checked_subscription(node, msg_type, topic: str, profile, on_message, on_malformed):
@@ -194,14 +194,17 @@ def decode_scenario(msg: ScenarioDescription) -> Scenario:
 
 
 # ---------------------------------------------------------------------------- learning
-def encode_rollout(rollout: Rollout) -> RolloutMsg:
-    """A :class:`Rollout` as the message, field for field (masks as 0/1 bytes; no imitation: empty)."""
+def encode_rollout(rollout: Rollout, encoding: str = "compact") -> RolloutMsg:
+    """A :class:`Rollout` as the message, field for field (masks as 0/1 bytes; no imitation:
+    empty), the observations in ``encoding``: compact (lossless) by default, as the world sends
+    them, which cuts a rollout of 16 agents over 128 steps from 8.1 MB to 0.55 MB, few enough
+    datagrams to cross a lossy link (docs/ros.md)."""
     frames, agents, channels, size, _ = rollout.observations.shape
     imitation = rollout.expert_actions is not None
     return RolloutMsg(
         n_agents=agents, n_steps=frames - 1, channels=channels, size=size,
         weights_version=rollout.weights_version, episode=rollout.episode, done=rollout.done, food=rollout.food,
-        agent_ids=u32(rollout.agent_ids), observations=f32(rollout.observations),
+        agent_ids=u32(rollout.agent_ids), **observation_fields(rollout.observations, encoding, "observations"),
         extra_inputs=f32(rollout.extra_inputs), actions=u8(rollout.actions), logprobs=f32(rollout.logprobs),
         values=f32(rollout.values), next_value=f32(rollout.next_value), h0=f32(rollout.h0), c0=f32(rollout.c0),
         rewards=f32(rollout.rewards), train_mask=u8(rollout.train_mask), sample_mask=u8(rollout.sample_mask),
@@ -228,7 +231,7 @@ def decode_rollout(msg: RolloutMsg) -> Rollout:
     return Rollout(
         weights_version=int(msg.weights_version), episode=int(msg.episode), done=bool(msg.done), food=float(msg.food),
         agent_ids=field("agent_ids", np.uint32, agents).astype(np.int64),
-        observations=field("observations", np.float32, steps + 1, agents, channels, size, size),
+        observations=decode_encoded(msg, msg.observations, (steps + 1, agents, channels, size, size)),
         extra_inputs=field("extra_inputs", np.float32, steps + 1, agents, EXTRA_INPUT_COUNT),
         actions=field("actions", np.uint8, steps, agents).astype(np.int64),
         logprobs=field("logprobs", np.float32, steps, agents),

@@ -28,7 +28,7 @@ NETWORK_VARIABLE = "FORMIC_DDS_NETWORK"
 WARNED_VARIABLE = "_FORMIC_HOSTS_WARNED"
 PROFILE_DIR = Path(__file__).resolve().parent / "fastdds"
 PROFILES = {"loopback": PROFILE_DIR / "loopback.xml", "loopback_udp": PROFILE_DIR / "loopback_udp.xml",
-            "hosts": PROFILE_DIR / "hosts.xml"}
+            "hosts": PROFILE_DIR / "hosts.xml", "hosts_udp": PROFILE_DIR / "hosts_udp.xml"}
 HOSTS_WARNING = ("formic: multi-host DDS (FORMIC_DDS_NETWORK=hosts): this domain's UDP ports "
                  "(7400+250*domain and up) listen on every network interface; anyone who reaches "
                  "them can read the world and drive agents (no DDS security in the pip wheels)")
@@ -45,12 +45,11 @@ def network_mode(env: Mapping[str, str]) -> str:
 
 
 def shipped_profile(env: Mapping[str, str]) -> Path:
-    """The shipped Fast DDS profile for this environment."""
-    if network_mode(env) == "hosts":
-        return PROFILES["hosts"]
-    if env.get("FASTDDS_BUILTIN_TRANSPORTS", "").strip().upper() == "UDPV4":
-        return PROFILES["loopback_udp"]
-    return PROFILES["loopback"]
+    """The shipped Fast DDS profile for this environment (a profile names its transports, so
+    ``FASTDDS_BUILTIN_TRANSPORTS=UDPv4`` picks the one without shared memory)."""
+    udp_only = env.get("FASTDDS_BUILTIN_TRANSPORTS", "").strip().upper() == "UDPV4"
+    mode = network_mode(env)
+    return PROFILES[f"{mode}_udp" if udp_only else mode]
 
 
 def _is_shipped(path: str) -> bool:

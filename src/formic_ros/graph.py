@@ -147,3 +147,14 @@ def wait_for_recorders(node: Node, executor, publishers, expected: int, reports:
             return False
         executor.spin_once(timeout_sec=0.05)
     return True
+
+
+def publishers_of(node: Node, topic: str) -> list[str]:
+    """The fully qualified names of the nodes the graph shows publishing on ``topic`` (a full
+    name): who a node waits for, named in its diagnostics."""
+    return sorted({qualified_name(i.node_namespace, i.node_name) for i in node.get_publishers_info_by_topic(topic)})
+
+
+def subscribers_of(node: Node, topic: str) -> list[str]:
+    """The fully qualified names of the nodes the graph shows subscribing to ``topic``."""
+    return sorted({qualified_name(i.node_namespace, i.node_name) for i in node.get_subscriptions_info_by_topic(topic)})

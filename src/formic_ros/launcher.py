@@ -36,6 +36,8 @@ from .world_node import WorldNodeOptions
 if TYPE_CHECKING:
     from formic_trainer.config import TrainConfig
 
+    from .robot_launch import RobotRunOptions
+
 DEFAULT_MAX_LAG = 4  # the trainer node's (formic_ros.trainer_node imports torch)
 HOST_EXIT_S = 10.0  # how long hosts get to leave by themselves after the episode
 
@@ -60,6 +62,7 @@ class RunOptions:
     log_dir: str | None = None  # children's output there (one file each) instead of stderr
     timeout_s: float | None = None  # give up on the world after this long
     view_port: int | None = None  # the world serves a live view (formic_view) on this port
+    robots: RobotRunOptions | None = None  # robot agents: their bridges (and simulator), docs/robots.md
 
 
 def world_spec(opts: RunOptions, scenario_file: Path, label: str, drivers: list[str]) -> dict:
@@ -68,6 +71,7 @@ def world_spec(opts: RunOptions, scenario_file: Path, label: str, drivers: list[
         rate_hz=opts.rate_hz or None, viewer_every=opts.viewer_every, policy_label=label,
         recorders=1 if opts.record else 0, progress=opts.progress, view_port=opts.view_port,
         external=tuple(opts.external), drivers=tuple(topics.full_name(opts.namespace, name) for name in drivers),
+        **(opts.robots.world_fields() if opts.robots else {}),
     )
     return node_spec("world", scenario=str(scenario_file), options=asdict(options), domain_id=opts.domain_id)
 
@@ -78,19 +82,31 @@ def recorder_spec(opts: RunOptions, team: Team) -> dict:
 
 
 def driver_specs(opts: RunOptions, team: Team) -> dict[str, dict]:
-    """The processes that answer the world: the planner node, or the agent hosts."""
+    """The processes that answer the world: the planner node, or the agent hosts (and the robot
+    bridges, with the robot simulator, deciding for and driving the robot agents)."""
     if "planner" in team.names:
         return {"planner": node_spec("planner", namespace=opts.namespace, once=True, domain_id=opts.domain_id)}
-    return {f"host{i}": node_spec("agents", agent_ids=[int(a) for a in ids], spec=opts.policy, once=True,
-                                  domain_id=opts.domain_id, model=opts.model, greedy=opts.greedy,
-                                  transport=opts.transport, namespace=opts.namespace, name=f"agent_host_{i}")
-            for i, ids in enumerate(team.split(opts.hosts))}
+    robots = set(opts.robots.agents) if opts.robots else set()
+    hosts = [[int(a) for a in ids if a not in robots] for ids in team.split(opts.hosts)]
+    specs = {f"host{i}": node_spec("agents", agent_ids=ids, spec=opts.policy, once=True,
+                                   domain_id=opts.domain_id, model=opts.model, greedy=opts.greedy,
+                                   transport=opts.transport, namespace=opts.namespace, name=f"agent_host_{i}")
+             for i, ids in enumerate(hosts) if ids}
+    if opts.robots:
+        from .robot_launch import robot_specs
+
+        specs |= robot_specs(opts.robots, opts.policy, opts.namespace, opts.domain_id, opts.model, opts.greedy)
+    return specs
 
 
 def launch(opts: RunOptions) -> dict:
     """Play one episode across processes; returns the world's summary (plus launch details).
     Raises RuntimeError when the world fails; children are stopped and reaped in any case."""
     team = Team.parse(opts.policy, opts.scenario.config.n_agents, external=opts.external)
+    if opts.robots:
+        from .robot_launch import check_robots
+
+        check_robots(opts.robots, team)
     # The world the team needs (one-slot queues for csaf-ref): the world node serves, and the
     # recorder records, this scenario, so a replay re-simulates the same world.
     scenario = apply_world_overrides(opts.scenario, team.names)

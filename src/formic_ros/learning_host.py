@@ -16,6 +16,7 @@ from contextlib import suppress
 import numpy as np
 import rclpy
 import torch
+from rclpy.duration import Duration
 from formic_interfaces.msg import ActionBatch, ObservationBatch, ScenarioDescription, Weights
 from formic_interfaces.msg import Rollout as RolloutMsg
 
@@ -32,6 +33,8 @@ from formic_world.geometry import N_ACTIONS
 
 from .ownership import Claim
 from . import convert, qos
+from .graph import publishers_of
+from .parameters import declare_settings
 from .wire import read
 from .agent_host import WorldWatch, read_scenario
 
@@ -140,6 +143,9 @@ class LearningHost:
         torch.set_num_threads(torch_threads)
         self.switch = switch
         self.control = rclpy.create_node(name or f"agent_host_{os.getpid()}", namespace=namespace)
+        declare_settings(self.control, {"agent_ids": [int(a) for a in agent_ids], "switch": switch,
+                                        "first_episode": first_episode, "torch_threads": torch_threads,
+                                        "train_config": cfg})
         self.nodes = [self.control]
         self.log = self.control.get_logger()
         self.actor = HostActor(cfg, agent_ids, first_episode=first_episode)
@@ -147,7 +153,7 @@ class LearningHost:
         node = self.control
         node.create_subscription(ScenarioDescription, topics.SCENARIO, self._on_scenario, qos.LATCHED)
         node.create_subscription(ObservationBatch, topics.OBSERVATIONS, self._on_batch, qos.STREAM)
-        node.create_subscription(Weights, topics.WEIGHTS, self._on_weights, qos.LATCHED)
+        self.weights_sub = node.create_subscription(Weights, topics.WEIGHTS, self._on_weights, qos.LATCHED)
         self.actions_pub = node.create_publisher(ActionBatch, f"~/{topics.ACTIONS}", qos.STREAM_WRITER)
         self.claim = Claim(node, list(self.ids), self.actions_pub.topic_name, publishers=[self.actions_pub])
         self.rollouts_pub = node.create_publisher(RolloutMsg, topics.ROLLOUTS, qos.ROLLOUT)
@@ -158,12 +164,13 @@ class LearningHost:
         self.playing = False
         self.episodes = 0  # episodes finished
         self.episode_rollouts = 0  # rollouts sent in the current episode
+        self.rollouts_sent = 0
         self.held: ObservationBatch | None = None  # newest observations not dealt with yet
         self.ready: tuple[AgentBatch, Frame] | None = None  # to act on once the weights allow
         self.newest = None  # the newest Weights message received
         self.wait_version: int | None = -1  # act only with weights newer than this (None: act now)
         self.answered_step, self.answer = -1, np.zeros(0, dtype=np.int64)
-        self.waiting_since = time.monotonic()
+        self._start_waiting()  # for the first weights
 
     # ------------------------------------------------------------------------ inputs
     def _on_scenario(self, msg: ScenarioDescription) -> None:
@@ -224,11 +231,13 @@ class LearningHost:
             if rollout is not None:
                 self.rollouts_pub.publish(convert.encode_rollout(rollout))
                 self.episode_rollouts += 1
+                self.rollouts_sent += 1
                 if self.switch == "chunk":  # act on with the weights this rollout makes
-                    self.wait_version, self.waiting_since = self.actor.version, time.monotonic()
+                    self.wait_version = self.actor.version
+                    self._start_waiting()
                 elif msg.done:  # start the next episode with the weights all of this one's make
                     self.wait_version = self.actor.version + self.episode_rollouts - 1
-                    self.waiting_since = time.monotonic()
+                    self._start_waiting()
             if msg.done:
                 self.playing = False
                 self.episodes += 1
@@ -241,17 +250,41 @@ class LearningHost:
         self.playing, self.answered_step, self.episode_rollouts = True, -1, 0
         self.actor.start_episode(batch.loads)
 
+    def _start_waiting(self) -> None:
+        """A wait for weights starts: reported after WEIGHTS_WAIT_LOG_S, and then as often."""
+        self.waiting_since = time.monotonic()
+        self.next_wait_report = self.waiting_since + WEIGHTS_WAIT_LOG_S
+
     def _weights_ready(self) -> bool:
         if self.wait_version is None:
             return True
         if self.newest is None or self.newest.version <= self.wait_version:
-            if time.monotonic() - self.waiting_since > WEIGHTS_WAIT_LOG_S:
-                self.log.warning(f"still waiting for weights newer than version {self.wait_version}")
-                self.waiting_since = time.monotonic()
+            if time.monotonic() > self.next_wait_report:
+                self.log.warning(self.weights_wait_report())
+                self.next_wait_report = time.monotonic() + WEIGHTS_WAIT_LOG_S
             return False
         self.actor.load_weights(self.newest)
         self.wait_version = None
         return True
+
+    def weights_wait_report(self) -> str:
+        """Who this host waits for and what it knows: the graph's publishers of ``weights`` (the
+        trainer) and whether they acknowledged this host's last rollout (lost on the way, or
+        received and the update or its weights are late)."""
+        waited = (f"waited {time.monotonic() - self.waiting_since:.0f} s for weights newer than version "
+                  f"{self.wait_version}")
+        trainers = publishers_of(self.control, self.weights_sub.topic_name)
+        if not trainers:
+            return (f"{waited}: no trainer publishes on {self.weights_sub.topic_name} (is `formic trainer` running, on "
+                    "this domain and namespace, and reachable: FORMIC_DDS_NETWORK, ROS_STATIC_PEERS?)")
+        waited += f" from {', '.join(trainers)}"
+        if not self.rollouts_sent:
+            return f"{waited}: none has arrived (the link?)"
+        if not self.rollouts_pub.get_subscription_count():
+            return f"{waited}: no trainer reader has matched this host's rollouts yet"
+        if not self.rollouts_pub.wait_for_all_acked(Duration(seconds=0)):
+            return f"{waited}: it has not acknowledged this host's last rollout (still crossing, or lost: the link?)"
+        return f"{waited}: it acknowledged this host's last rollout; its update or the new weights are late"
 
     def pump(self) -> None:
         """Deal with what has arrived: the held observations, then acting when the weights allow."""
@@ -272,8 +305,6 @@ def serve_learning_agents(agent_ids: list[int], cfg: TrainConfig, switch: str = 
                           torch_threads: int = 1) -> int:
     """Host learning agents until interrupted (or until ``episodes`` episodes are played and
     their rollouts delivered, or the world is gone); returns the episodes played."""
-    from rclpy.duration import Duration
-
     from .env import ros_session
 
     with ros_session(domain_id) as executor:

@@ -69,6 +69,10 @@ class ActionInbox:
         self.owners = None  # formic_ros.ownership.Ownership: allowed(topic, agent), allowed_batch(topic, ids)
 
     def open(self, step: int) -> None:
+        """Wait on ``step``'s actions. Opening the step already open keeps the answers taken
+        (a paused world opens its next step early: :meth:`WorldNode.pause`)."""
+        if self.is_open and self.step == step:
+            return
         self.step, self.is_open = step, True
         self.actions[:] = NO_ACTION
         self.received[:] = False

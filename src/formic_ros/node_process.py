@@ -30,7 +30,7 @@ def world(options: dict, domain_id: int | None, scenario: str | None = None, tra
     if train_config is None:
         from formic_world import Scenario
 
-        serve_world(Scenario.load(scenario), options, domain_id=domain_id, on_summary=emit)
+        serve_world(Scenario.load(scenario), options, domain_id=domain_id, on_summary=emit, scenario_file=scenario)
         return
     from formic_trainer.config import load_train_config
 
@@ -82,7 +82,28 @@ def trainer(train_config: str, run_dir: str, **kwargs) -> None:
     emit(serve_trainer(load_train_config(train_config), Path(run_dir), log=log, **kwargs))
 
 
-NODES = {f.__name__: f for f in (world, agents, learning_agents, planner, recorder, trainer)}
+def robots(settings: dict, **kwargs) -> None:
+    """Robot bridges (``formic robot``): ``settings`` are a :class:`BridgeSettings`' fields."""
+    from formic_robots.controller import ControllerSettings
+
+    from .robot_bridge import BridgeSettings, serve_robots
+
+    controller = ControllerSettings(**settings.pop("controller"))
+    serve_robots(settings=BridgeSettings(**settings, controller=controller), **kwargs)
+
+
+def robots_sim(settings: dict, **kwargs) -> None:
+    """The robot simulator (``formic robots-sim``): ``settings`` are a :class:`SimSettings`' fields."""
+    from formic_robots.unicycle import UnicycleLimits
+
+    from .robots_sim import SimSettings, serve_robots_sim
+
+    limits = UnicycleLimits(**settings.pop("limits"))
+    serve_robots_sim(settings=SimSettings(**{**settings, "origin": tuple(settings["origin"])}, limits=limits),
+                     **kwargs)
+
+
+NODES = {f.__name__: f for f in (world, agents, learning_agents, planner, recorder, trainer, robots, robots_sim)}
 
 
 def node_spec(node: str, **kwargs) -> dict:

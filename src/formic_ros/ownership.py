@@ -241,10 +241,15 @@ class Ownership:
                 self._bind(claim)
 
     def why_nobody_answered(self) -> str | None:
-        """What the world knows about drivers it turned away (for the "nobody joined" error),
-        or None when it turned nobody away (then discovery is the likely cause)."""
+        """What the world knows about drivers it turned away or that claimed agents and stayed
+        silent (for the "nobody joined" error), or None when no driver claimed anything (then
+        discovery is the likely cause)."""
         reasons = [f"refused a claim: {claim['why']}" for claim in self.outsiders.values()]
         reasons += [f"refused {claim['owner']}'s claim: its agents were already driven" for claim in self.refused.values()]
+        silent = {claim["owner"] for claim in self.claims.values()} - {c["owner"] for c in self.refused.values()}
+        reasons += [f"{owner} claimed agents but did not answer" + ("" if self._alive(owner) else
+                                                                    " (it has left the graph)")
+                    for owner in sorted(silent)]
         rejected = {reason: n for reason, n in (self.rejected or {}).items() if n}
         if rejected:
             reasons.append("rejected actions: " + ", ".join(f"{n} {reason}" for reason, n in sorted(rejected.items())))

@@ -22,6 +22,7 @@ import formic_topics as topics
 from formic_world import World
 
 from .ownership import Claim
+from .parameters import declare_settings
 from . import convert, qos
 from .agent_host import WorldWatch
 
@@ -33,6 +34,7 @@ class PlannerNode(Node):
 
     def __init__(self, namespace: str = topics.DEFAULT_NAMESPACE):
         super().__init__("planner", namespace=namespace)
+        declare_settings(self, {"policy": "planner", "resend_s": RESEND_S})
         configure_threads()
         self.planner = make_policy("planner")
         self.actions_pub = self.create_publisher(ActionBatch, f"~/{topics.ACTIONS}", qos.STREAM_WRITER)
@@ -42,6 +44,7 @@ class PlannerNode(Node):
         self.create_subscription(WorldState, topics.STATE, self._on_state, qos.STREAM)
         self.world: World | None = None
         self.scenario_json = ""
+        self.scenario = None
         self.horizon = -1  # its episode's steps (-1: no scenario yet)
         self.pending: ActionBatch | None = None
         self.sent_at = -np.inf
@@ -54,8 +57,13 @@ class PlannerNode(Node):
     def _on_scenario(self, msg: ScenarioDescription) -> None:
         if msg.scenario_json == self.scenario_json:
             return
-        scenario = convert.decode_scenario(msg)
-        self.scenario_json, self.horizon = msg.scenario_json, scenario.config.episode_steps
+        self.scenario_json, self.scenario = msg.scenario_json, convert.decode_scenario(msg)
+        self._start()
+
+    def _start(self) -> None:
+        """A fresh replica of the scenario at step 0, and the plan for it."""
+        scenario = self.scenario
+        self.horizon = scenario.config.episode_steps
         self.world = World(scenario)
         self.planner.reset(scenario.config.n_agents, scenario.seed)
         if self.claim is None:  # the planner drives the whole team
@@ -86,6 +94,8 @@ class PlannerNode(Node):
             self._plan()
 
     def _on_state(self, msg: WorldState) -> None:
+        if msg.step == 0 and self.scenario is not None and (self.world is None or self.world.t > 0):
+            self._start()  # the world started the same scenario again (a simulation_interfaces reset)
         self.world_digests[msg.step] = msg.state_digest
         self._compare()
 

@@ -75,5 +75,7 @@ _OFFERED: dict[str, QoSProfile] = {  # by each topic's publishers
     topics.CLAIMS: LATCHED,
     topics.OWNERS: LATCHED,
     topics.RECORDER_MATCHES: LATCHED,
+    topics.ROBOT_GOAL: STREAM_WRITER,  # under agent_K/
+    topics.ROBOT_STATUS: STREAM_WRITER,  # under agent_K/
 }
 TOPICS: dict[str, Topic] = {name: Topic(msgtype, _OFFERED[name]) for name, msgtype in topics.TOPIC_TYPES.items()}

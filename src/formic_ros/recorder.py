@@ -36,6 +36,7 @@ from formic_record.reading import Recording
 
 from . import qos
 from .graph import RECORDER_NODE, recorder_report
+from .parameters import declare_settings, settings_of
 
 DISCOVERY_PERIOD_S = 0.2
 REPORT_PERIOD_S = 0.02  # a changed match count is reported within this long
@@ -118,6 +119,7 @@ class Recorder(Node):
 
     def __init__(self, writer: BagWriter, options: RecorderOptions):
         super().__init__(RECORDER_NODE, namespace=options.namespace)
+        declare_settings(self, settings_of(options) | {"out": str(writer.path)})
         self.writer = writer
         self.options = options
         self.counts: Counter = Counter()
@@ -153,6 +155,8 @@ class Recorder(Node):
     def _wanted(self, name: str) -> bool:
         if self.options.topics:
             return name in self.options.topics
+        if any(part.startswith("_") for part in name.split("/")):
+            return False  # hidden topics (e.g. an action's _action/feedback), as rosbag2 leaves them out
         namespace = self.options.namespace.rstrip("/")
         if name == topics.full_name(namespace, topics.RECORDER_MATCHES):
             return False  # the recorders' own bookkeeping, not part of the run

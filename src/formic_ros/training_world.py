@@ -4,8 +4,12 @@ the in-process trainer would draw, with the training masks in the observation ba
 from __future__ import annotations
 
 from dataclasses import replace
+from functools import partial
 from typing import TYPE_CHECKING, Callable
 
+import formic_topics as topics
+
+from .graph import publishers_of
 from .world_node import WorldNode, WorldNodeOptions
 
 if TYPE_CHECKING:
@@ -17,6 +21,19 @@ def require_one_world(cfg: TrainConfig) -> None:
     if len(cfg.teams) != 1:
         raise ValueError(f"distributed training runs one meta-agent world; teams={list(cfg.teams)} "
                          "(set one team size, e.g. --set teams=16)")
+
+
+def why_hosts_silent(node: WorldNode) -> str:
+    """Why no learning host answered step 0, naming the peers: the drivers that claimed agents
+    (or that none did), and the trainer whose weights a learning host waits for before it acts
+    (a rollout or weights lost between machines stalls the host, not the world)."""
+    drivers = node.ownership.why_nobody_answered() or (
+        "no learning host claimed agents (check --domain-id, --namespace, ROS_STATIC_PEERS)")
+    topic = topics.full_name(node.get_namespace(), topics.WEIGHTS)
+    trainers = publishers_of(node, topic)
+    if trainers:
+        return f"{drivers}; a learning host acts only on weights from {', '.join(trainers)} (see its log)"
+    return f"{drivers}; no trainer publishes on {topic}, and a learning host acts only on its weights"
 
 
 def serve_training_world(
@@ -50,6 +67,7 @@ def serve_training_world(
                 executor.add_node(node)
             else:
                 node.load(scenario)
+            node.lockstep.why_absent = partial(why_hosts_silent, node)
             summary = node.run(executor, last=episode + 1 == first_episode + episodes)
             summary.update(episode=episode, highway_intensity=highway, deposit_strength=deposit)
             summaries.append(summary)

@@ -10,9 +10,11 @@ re-sends, misses) is :mod:`formic_ros.lockstep`; training mode :mod:`formic_ros.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import json
 import sys
+import threading
 import time
 from dataclasses import dataclass
 from typing import Callable
@@ -32,6 +34,8 @@ from formic_world import Scenario, StepResult, World
 from .graph import RecorderReports, recorders_present, settle_discovery, wait_for_recorders
 from . import convert, qos, viewer_msgs
 from .lockstep import Lockstep, RateLimitedLog
+from .parameters import declare_settings, settings_of
+from .robot_steps import robot_link
 from .ownership import Ownership, batch_of
 from .wire import encoding_code, read
 
@@ -59,6 +63,13 @@ class WorldNodeOptions:
     view_port: int | None = None  # live view (formic_view, Foxglove WebSocket) on this port; None: none
     external: tuple[int, ...] | None = None  # agents other nodes may drive (None: any; formic_ros.ownership)
     drivers: tuple[str, ...] | None = None  # the run's own driver nodes, the only claimants of the rest (None: anyone)
+    paused: bool = False  # start paused at step 0 and stay up for simulation_interfaces clients (sim_control)
+    cell_size: float = 1.0  # metres per cell in the map frame (formic_world.metric_frame): entity poses
+    origin_x: float = 0.0  # map coordinates of the grid's south-west corner
+    origin_y: float = 0.0
+    robots: tuple[int, ...] = ()  # robot agents: each step waits for them to reach their cells (formic_ros.robot_steps)
+    robot_tolerance: float = 0.1  # metres from its cell's centre that count as a robot being in the cell
+    robot_cell_s: float = 10.0  # seconds a robot gets per cell of a move before the move counts as failed
 
 
 class WorldNode(Node):
@@ -68,8 +79,10 @@ class WorldNode(Node):
     def __init__(self, scenario: Scenario, options: WorldNodeOptions = WorldNodeOptions()):
         super().__init__("world", namespace=options.namespace)
         self.options = options
+        declare_settings(self, settings_of(options))
         n = self.n_agents = scenario.config.n_agents
         self.log = RateLimitedLog(self.get_logger())
+        self.core_lock = threading.Lock()  # held while the core changes: other threads then read a whole step
         encoding_code(options.observation_encoding)  # an unknown encoding fails here, not at step 0
 
         pub = self.create_publisher
@@ -102,6 +115,7 @@ class WorldNode(Node):
 
             self.view = LiveView(port=options.view_port, dt=options.dt)
             self.get_logger().info(announcement(self.view.url))
+        self.robots = robot_link(self, scenario) if options.robots else None  # robot agents (docs/robots.md)
         self.load(scenario)
 
     def load(self, scenario: Scenario) -> None:
@@ -110,7 +124,8 @@ class WorldNode(Node):
         if n != self.n_agents:
             raise ValueError(f"a world node serves one team size ({self.n_agents} agents), not {n}")
         self.scenario = scenario
-        self.world = World(scenario)
+        with self.core_lock:
+            self.world = World(scenario)
         opts = self.options
         self.lockstep = Lockstep(n, self.log, self.get_logger(), opts.deadline_s, opts.startup_timeout_s, opts.rate_hz,
                                  opts.allow_empty)
@@ -200,7 +215,8 @@ class WorldNode(Node):
         expected = max(self.options.recorders, recorders_present(self))  # told about, or present at start
         self.ownership.expect_recorders(expected)
         publishers = [self.scenario_pub, self.summary_pub, self.state_pub, self.applied_pub, self.observations_pub,
-                      self.score_pub, self.clock_pub, self.map_pub, self.markers_pub, *self.agent_obs_pubs]
+                      self.score_pub, self.clock_pub, self.map_pub, self.markers_pub, *self.agent_obs_pubs,
+                      *(self.robots.publishers if self.robots is not None else ())]
         if expected:
             self.get_logger().info(f"waiting for {expected} recorder(s) to match every topic")
             if not wait_for_recorders(self, executor, publishers, expected, self.recorder_reports,
@@ -219,47 +235,88 @@ class WorldNode(Node):
     def run(self, executor, last: bool = True) -> dict:
         """Play the episode; returns the summary (also published, latched, on ``summary``).
         ``last``: the process leaves afterwards, so the final messages get time to go out."""
+        self.begin_episode(executor)
+        while not self.world.done:
+            self.step(executor)
+        return self.end_episode(executor, last)
+
+    def begin_episode(self, executor) -> None:
+        """Before step 0: the subscribers asked for are heard, the initial state is out, and
+        the episode's counters and clocks start."""
         from tqdm import tqdm
 
         opts, world, cfg = self.options, self.world, self.scenario.config
-        horizon = cfg.episode_steps
         self._wait_for_subscribers(executor)
-        result = world.last_result if world.t == 0 else world.reset(self.scenario)  # a new world is reset
-        book = EpisodeStats(cfg.n_agents, horizon)
+        with self.core_lock:
+            self.result = world.last_result if world.t == 0 else world.reset(self.scenario)  # a new world is reset
+        if self.robots is not None:  # every robot at its start cell
+            self.robots.place(executor, world, opts.startup_timeout_s)
+        self.book = EpisodeStats(cfg.n_agents, cfg.episode_steps)
         self._publish_state()
-        started = tick = time.monotonic()
-        clock = {"stepping_from": started, "cpu_from": time.process_time()}
+        self.started = self.tick = time.monotonic()
+        self.clock = {"stepping_from": self.started, "cpu_from": time.process_time()}
         deadline = f"lockstep, deadline {opts.deadline_s * 1e3:.0f} ms"
         mode = f"free-running at {opts.rate_hz} Hz" if opts.rate_hz else deadline
-        self.get_logger().info(f"episode: {cfg.height}x{cfg.width}, {cfg.n_agents} agents, {horizon} steps, "
-                               f"seed {self.scenario.seed}, {mode}")
-        finish = None  # the last step's bookkeeping, done while the agents choose the next actions
-        with tqdm(total=horizon, disable=not opts.progress, file=sys.stderr, unit="step", leave=False) as bar:
-            for t in range(horizon):
-                self.inbox.open(t)
-                self._publish_observations(result)
-                if finish is not None:
-                    finish()
-                t0 = time.monotonic()
-                resend = functools.partial(self._publish_observations, result)
-                tick = self.lockstep.await_actions(executor, resend, started, tick)
-                self.lockstep.count_misses(t)
-                actions = self.inbox.close()
-                t1 = time.monotonic()
-                loads_before, queued_before = world.loads.copy(), world.queued.copy()
-                result = world.step(actions)
-                finish = functools.partial(self._finish_step, book, t, actions, loads_before, queued_before,
-                                           t1 - t0, time.monotonic() - t1, final=t + 1 == horizon)
-                if t == 0:  # speed is measured from here: start-up and discovery excluded
-                    clock = {"stepping_from": time.monotonic(), "cpu_from": time.process_time()}
-                bar.update()
-        self._publish_observations(result)  # done=True: hosts stop answering
-        if finish is not None:
+        self.get_logger().info(f"episode: {cfg.height}x{cfg.width}, {cfg.n_agents} agents, {cfg.episode_steps} "
+                               f"steps, seed {self.scenario.seed}, {mode}")
+        self._finish = None  # the last step's bookkeeping, done while the agents choose the next actions
+        self._bar = tqdm(total=cfg.episode_steps, disable=not opts.progress, file=sys.stderr, unit="step",
+                         leave=False)
+
+    def step(self, executor) -> None:
+        """Step ``world.t``, whoever asks (the episode loop or a simulation_interfaces client):
+        observations out, the agents' actions in (waiting as the mode says), the core steps.
+        Its bookkeeping runs after the next step's observations went out, or at :meth:`settle`."""
+        world = self.world
+        t = world.t
+        self.inbox.open(t)
+        self._publish_observations(self.result)
+        self.settle()
+        t0 = time.monotonic()
+        resend = functools.partial(self._publish_observations, self.result)
+        self.tick = self.lockstep.await_actions(executor, resend, self.started, self.tick)
+        self.lockstep.count_misses(t)
+        actions = self.inbox.close()
+        t1 = time.monotonic()
+        loads_before, queued_before = world.loads.copy(), world.queued.copy()
+        with self.core_lock:  # (with robots: held while they drive, so readers see committed steps only)
+            if self.robots is None:
+                self.result = world.step(actions)
+            else:  # committed once the robots are in their cells; failed moves become NO_ACTION
+                report = self.robots.step(executor, world, actions)
+                self.result, actions = report.result, report.applied
+        self._finish = functools.partial(self._finish_step, self.book, t, actions, loads_before, queued_before,
+                                         t1 - t0, time.monotonic() - t1, final=world.done)
+        if t == 0:  # speed is measured from here: start-up and discovery excluded
+            self.clock = {"stepping_from": time.monotonic(), "cpu_from": time.process_time()}
+        self._bar.update()
+
+    def settle(self) -> None:
+        """Do the last step's pending bookkeeping now (the world stops here for a while)."""
+        if self._finish is not None:
+            finish, self._finish = self._finish, None
             finish()
-        clock.update(ended=time.monotonic(), cpu_to=time.process_time(), started=started)
+
+    def pause(self) -> None:
+        """Stop between steps: the last step's bookkeeping now, and the next step's actions
+        taken as they come (the planner answers ``applied_actions`` before a client asks for
+        the step; hosts answer only observations, which the step sends)."""
+        self.settle()
+        if not self.world.done:
+            self.inbox.open(self.world.t)
+
+    def end_episode(self, executor, last: bool = True) -> dict:
+        """After the last step: done observations (hosts stop answering), the summary."""
+        world = self.world
+        self._publish_observations(self.result)  # done=True: hosts stop answering
+        self.settle()
+        self._bar.close()
+        self.clock.update(ended=time.monotonic(), cpu_to=time.process_time(), started=self.started)
         if last:
             self._linger(executor)
-        summary = self.lockstep.summary(book, self.scenario, self.options.policy_label or "unknown", clock)
+        summary = self.lockstep.summary(self.book, self.scenario, self.options.policy_label or "unknown", self.clock)
+        if self.robots is not None:
+            summary.update(self.robots.summary())
         self.summary_pub.publish(String(data=json.dumps(summary, default=float)))
         for publisher in (self.applied_pub, self.state_pub, self.summary_pub) if last else ():
             if publisher.get_subscription_count():
@@ -269,6 +326,14 @@ class WorldNode(Node):
             f"{sum(self.inbox.rejected.values())} rejected, {summary['steps_per_s']:.0f} steps/s"
         )
         return summary
+
+    def abandon_episode(self) -> None:
+        """End the episode before its last step (a reset): observations marked done tell the
+        hosts to start afresh at the next step 0. No summary: the episode was not played out."""
+        self.settle()
+        self._publish_observations(dataclasses.replace(self.result, done=True))
+        self._bar.close()
+        self.get_logger().info(f"episode abandoned at step {self.world.t} of {self.scenario.config.episode_steps}")
 
     def _finish_step(self, book: EpisodeStats, t: int, actions: np.ndarray, loads_before: np.ndarray,
                      queued_before: np.ndarray, wait_s: float, step_s: float, final: bool) -> None:
@@ -284,26 +349,30 @@ class WorldNode(Node):
 
 
 def serve_world(scenario: Scenario, options: WorldNodeOptions, domain_id: int | None = None,
-                on_summary: Callable[[dict], None] | None = None, stay: bool = False) -> dict:
-    """Run the world node for one episode in this process. ``on_summary`` gets the summary as
-    soon as the episode ends; with ``stay`` the node then keeps serving the latched scenario
-    and summary until interrupted."""
+                on_summary: Callable[[dict], None] | None = None, stay: bool = False,
+                scenario_file: str = "") -> dict | None:
+    """Run the world node in this process, controllable through simulation_interfaces
+    (:mod:`formic_ros.sim_control`): it plays one episode and returns its summary, or, with
+    ``options.paused``, waits for a client and serves episode after episode until told to quit
+    (then the last summary, None if no episode ended). ``on_summary`` gets each summary as soon
+    as its episode ends; with ``stay`` the node then keeps serving the latched scenario and
+    summary until interrupted. ``scenario_file``: where ``scenario`` came from, if from a file
+    (a reset loads it again)."""
     from .env import ros_session
+    from .sim_control import SimulationControl
     from .world_lock import world_lock
 
     with world_lock(options.namespace, domain_id), ros_session(domain_id) as executor:
         node = WorldNode(scenario, options)
         executor.add_node(node)
+        control = SimulationControl(node, executor, scenario_file, stays=options.paused or stay)
         try:
-            summary = node.run(executor)
+            return control.serve(on_summary)
+        except KeyboardInterrupt:
+            if stay and control.summary is not None:  # interrupting --stay after the episode is its normal end
+                return control.summary
+            raise
         finally:
+            control.close()
             if node.view is not None:
                 node.view.close()
-        if on_summary is not None:
-            on_summary(summary)
-        try:
-            while stay:
-                executor.spin_once(timeout_sec=0.2)
-        except KeyboardInterrupt:
-            pass
-        return summary

@@ -28,6 +28,8 @@ WEIGHTS = "weights"  # trainer -> learning hosts
 CLAIMS = "claims"  # driver nodes -> world: the agents each drives (formic_ros.ownership)
 OWNERS = "owners"  # world -> driver nodes: who drives which agent
 RECORDER_MATCHES = "recorder_matches"  # recorders -> world and drivers: what each recorder's readers matched
+ROBOT_GOAL = "robot_goal"  # world -> robot bridge, under agent_K/: the cells a step takes robot agent K through
+ROBOT_STATUS = "robot_status"  # robot bridge -> world, under agent_K/: arrived, failed, or its pose on the way
 
 # Message types, as recordings name them (package/msg/Name).
 SCENARIO_TYPE = "formic_interfaces/msg/ScenarioDescription"
@@ -43,6 +45,8 @@ FLOAT64_TYPE = "std_msgs/msg/Float64"
 OCCUPANCY_GRID_TYPE = "nav_msgs/msg/OccupancyGrid"
 MARKER_ARRAY_TYPE = "visualization_msgs/msg/MarkerArray"
 CLOCK_TYPE = "rosgraph_msgs/msg/Clock"
+ROBOT_GOAL_TYPE = "formic_interfaces/msg/RobotGoal"
+ROBOT_STATUS_TYPE = "formic_interfaces/msg/RobotStatus"
 
 TOPIC_TYPES: dict[str, str] = {
     SCENARIO: SCENARIO_TYPE,
@@ -62,13 +66,15 @@ TOPIC_TYPES: dict[str, str] = {
     CLAIMS: STRING_TYPE,
     OWNERS: STRING_TYPE,
     RECORDER_MATCHES: STRING_TYPE,
+    ROBOT_GOAL: ROBOT_GOAL_TYPE,  # under agent_K/
+    ROBOT_STATUS: ROBOT_STATUS_TYPE,  # under agent_K/
 }
 # The world's topics, which a recorder subscribes to at once (the rest it discovers).
 WORLD_TOPICS = (SCENARIO, SUMMARY, STATE, APPLIED_ACTIONS, OBSERVATIONS, ACTIONS, SCORE, MAP, AGENT_MARKERS, CLOCK)
 
 # Values messages carry.
 NO_ACTION_WIRE = 255  # an action that did not arrive in time (ActionBatch.actions)
-ENCODING_FLOAT32, ENCODING_COMPACT = 0, 1  # ObservationBatch.encoding (its constants)
+ENCODING_FLOAT32, ENCODING_COMPACT = 0, 1  # ObservationBatch.encoding, Rollout.encoding (their constants)
 SCENARIO_FORMAT_VERSION = 1  # ScenarioDescription.format_version
 EXTRA_INPUT_COUNT = 10  # Rollout.extra_inputs per agent and frame: formic_agent.network.N_EXTRA_INPUTS
 

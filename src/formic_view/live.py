@@ -124,6 +124,11 @@ class LiveView:
                                               context=context)
 
     @property
+    def context(self) -> foxglove.Context:
+        """The server's context, for channels of other layers (:mod:`formic_view.robots`)."""
+        return self._context
+
+    @property
     def port(self) -> int:
         return self.server.port
 

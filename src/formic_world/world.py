@@ -44,6 +44,10 @@ from .scenario import (
 
 _RESPAWN_TRIES = 1000
 NO_ACTION = -1  # an agent whose action is missing (a late or dead agent node) does nothing
+# what World.step changes (World.snapshot/restore): every array it writes, in place or anew
+_STEPPED_ARRAYS = ("grid", "pheromone", "agent_at", "pos", "load", "queue_of", "spot_of", "intensity", "last_move",
+                   "queue_cells", "queue_members", "queue_count", "queue_head", "resource_pos", "resource_dir",
+                   "resource_capacity", "resource_remaining", "entry_owner", "resource_collect_reward", "rewards")
 
 
 @dataclass
@@ -322,6 +326,25 @@ class World:
         if cfg.highway_intensity > 0:
             return np.maximum(self.pheromone, cfg.highway_intensity * self.highways)
         return self.pheromone
+
+    def snapshot(self) -> dict:
+        """Everything a step changes (the random generator's state included), so that
+        :meth:`restore` can take the world back and step it again with other actions: a world
+        with robots applies a step tentatively and re-applies it when a robot fails its move."""
+        saved = {name: getattr(self, name).copy() for name in _STEPPED_ARRAYS}
+        saved.update(rng=self.rng.bit_generator.state, score_ticks=self.score_ticks, t=self.t,
+                     last_result=self.last_result)
+        return saved
+
+    def restore(self, saved: dict) -> None:
+        """Back to a :meth:`snapshot` (which stays usable: it can be restored again)."""
+        grid_changed = not np.array_equal(self.grid, saved["grid"])
+        for name in _STEPPED_ARRAYS:
+            setattr(self, name, saved[name].copy())
+        self.rng.bit_generator.state = saved["rng"]
+        self.score_ticks, self.t, self.last_result = saved["score_ticks"], saved["t"], saved["last_result"]
+        if grid_changed:  # a resource respawned in the step taken back
+            self.observer.grid_changed()
 
     def state_digest(self) -> str:
         """Hash of the exact dynamic state; equal digests mean identical trajectories so far."""

@@ -1,0 +1,129 @@
+"""Robot commands (docs/robots.md): ``formic robot`` (bridges between robot agents and robots),
+``formic robots-sim`` (simulated robots), and the robot options of ``formic run`` and
+``formic world``. Registered by :mod:`formic_cli.ros_commands`."""
+
+from __future__ import annotations
+
+import click
+
+from .options import hosts_network_option, greedy_option, model_option, option_group, ros_options
+from .summary import click_errors
+
+DEFAULT_CMD_VEL = "/robot_{agent}/cmd_vel"
+DEFAULT_ODOM = "/robot_{agent}/odom"
+
+
+def _ids(ctx, param, text: str | None) -> tuple[int, ...]:
+    from formic_runtime.team import parse_ids
+
+    try:
+        return tuple(parse_ids(text)) if text else ()
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), ctx=ctx, param=param) from exc
+
+
+# the world's (named as WorldNodeOptions' fields)
+world_robot_options = option_group(
+    click.option("--robots", callback=_ids,
+                 help="Robot agents, e.g. 28-31: each step is committed when they have reached their cells."),
+    click.option("--robot-tolerance", default=0.1, show_default=True,
+                 help="Metres from a cell's centre that count as a robot being in the cell."),
+    click.option("--robot-cell-s", default=10.0, show_default=True,
+                 help="Seconds a robot gets per cell of a move before the move counts as failed."),
+)
+
+# formic run's (popped by robot_run_options)
+run_robot_options = option_group(
+    world_robot_options,
+    click.option("--robots-sim", is_flag=True, help="Simulate the robots (formic robots-sim) instead of real ones."),
+    click.option("--cell-size", default=1.0, show_default=True, help="Metres a grid cell (the map frame)."),
+    click.option("--robot-speed", default=0.5, show_default=True, help="Robots' top speed, m/s."),
+    click.option("--robot-turn", default=2.5, show_default=True, help="Robots' top turn rate, rad/s."),
+    click.option("--robot-stall-rate", default=0.0, show_default=True,
+                 help="Simulated robots: stalls per second of driving (moves then fail)."),
+)
+
+
+def robot_run_options(fields: dict):
+    """Pop ``run_robot_options`` out of a command's kwargs: a RobotRunOptions, or None without --robots."""
+    from formic_ros.robot_launch import RobotRunOptions
+
+    robots, simulate = fields.pop("robots"), fields.pop("robots_sim")
+    settings = {name: fields.pop(f"robot_{name}") for name in ("tolerance", "cell_s", "speed", "turn", "stall_rate")}
+    cell_size = fields.pop("cell_size")
+    if not robots:
+        if simulate:
+            raise click.UsageError("--robots-sim needs --robots")
+        return None
+    return RobotRunOptions(agents=robots, simulate=simulate, cell_size=cell_size, seed=fields["seed"], **settings)
+
+
+@click.command()
+@hosts_network_option
+@click.option("--agent", "agents", required=True, callback=_ids,
+              help="The robot agent(s), e.g. 5 (or 28-31: a bridge node each, one process).")
+@click.option("--policy", default="formic", show_default=True,
+              help="Who decides for the robot: a policy or team spec as `formic agents --policy`, or none "
+                   "(your own node agent_K publishes agent_K/action; leave K --external).")
+@model_option
+@greedy_option
+@click.option("--cmd-vel", default=DEFAULT_CMD_VEL, show_default=True,
+              help="geometry_msgs/Twist topic the robot follows ({agent}: the agent id).")
+@click.option("--odom", default=DEFAULT_ODOM, show_default=True,
+              help="nav_msgs/Odometry topic of the robot ({agent}: the agent id).")
+@click.option("--pose", help="geometry_msgs/PoseStamped topic in the map frame instead of odometry ({agent}).")
+@click.option("--odom-origin", default="map", show_default=True,
+              help="Where the pose's frame lies in the map: map (it is the map frame), start (the robot was switched "
+                   "on at its start cell's centre facing east), or X,Y,YAW.")
+@click.option("--max-speed", default=0.5, show_default=True, help="Top speed the bridge commands, m/s.")
+@click.option("--max-turn", default=2.0, show_default=True, help="Top turn rate the bridge commands, rad/s.")
+@click.option("--stall-s", default=3.0, show_default=True,
+              help="No progress for this long: the move fails (blocked).")
+@ros_options()
+@click.option("--once", is_flag=True, help="Exit when the episode ends.")
+def robot(agents, policy, model, greedy, cmd_vel, odom, pose, odom_origin, max_speed, max_turn, stall_s, namespace,
+          domain_id, once) -> None:
+    """Robot bridge: a robot agent's decisions to cmd_vel, the robot's odometry back to its cell."""
+    from formic_robots.controller import ControllerSettings
+    from formic_ros.lockstep import WorldLost
+    from formic_ros.robot_bridge import BridgeSettings, parse_origin, serve_robots
+
+    with click_errors(ValueError, FileNotFoundError, WorldLost, interrupted=""):
+        parse_origin(odom_origin)
+        controller = ControllerSettings(max_linear=max_speed, max_angular=max_turn, linear_decel=max_speed,
+                                        angular_decel=2 * max_turn)
+        settings = BridgeSettings(cmd_vel=cmd_vel, odom=odom, pose=pose, odom_origin=odom_origin, stall_s=stall_s,
+                                  controller=controller)
+        serve_robots(list(agents), policy, settings, namespace=namespace, model=model, greedy=greedy, once=once,
+                     domain_id=domain_id)
+
+
+@click.command("robots-sim")
+@hosts_network_option
+@click.option("--robots", "agents", required=True, callback=_ids, help="The robot agents to simulate, e.g. 28-31.")
+@click.option("--cell-size", default=1.0, show_default=True, help="Metres a cell: the world's --cell-size.")
+@click.option("--origin-x", default=0.0, show_default=True, help="The world's --origin-x.")
+@click.option("--origin-y", default=0.0, show_default=True, help="The world's --origin-y.")
+@click.option("--max-speed", default=0.5, show_default=True, help="m/s")
+@click.option("--max-turn", default=2.5, show_default=True, help="rad/s")
+@click.option("--accel", default=1.0, show_default=True, help="m/s^2 (turning: 5x in rad/s^2)")
+@click.option("--noise", default=0.05, show_default=True, help="Slip: std. dev. of executed/commanded velocity.")
+@click.option("--stall-rate", default=0.0, show_default=True, help="Stalls per second of driving.")
+@click.option("--stall-s", default=3.0, show_default=True, help="Seconds a stall lasts.")
+@click.option("--seed", default=0, show_default=True, help="Seed of the noise and the stalls.")
+@click.option("--cmd-vel", default=DEFAULT_CMD_VEL, show_default=True, help="Twist topic of each robot ({agent}).")
+@click.option("--odom", default=DEFAULT_ODOM, show_default=True, help="Odometry topic of each robot ({agent}).")
+@ros_options()
+@click.option("--once", is_flag=True, help="Exit when the world leaves.")
+def robots_sim(agents, cell_size, origin_x, origin_y, max_speed, max_turn, accel, noise, stall_rate, stall_s, seed,
+               cmd_vel, odom, namespace, domain_id, once) -> None:
+    """Simulated differential-drive robots: cmd_vel in, odometry and tf out, placed at their agents' start cells."""
+    from formic_robots.unicycle import UnicycleLimits
+    from formic_ros.robots_sim import SimSettings, serve_robots_sim
+
+    with click_errors(ValueError, interrupted=""):
+        limits = UnicycleLimits(max_linear=max_speed, max_angular=max_turn, linear_accel=accel,
+                                angular_accel=5 * accel, noise=noise, stall_rate=stall_rate, stall_s=stall_s)
+        settings = SimSettings(cmd_vel=cmd_vel, odom=odom, cell_size=cell_size, origin=(origin_x, origin_y),
+                               limits=limits, seed=seed)
+        serve_robots_sim(list(agents), settings, namespace=namespace, once=once, domain_id=domain_id)
