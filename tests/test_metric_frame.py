@@ -38,3 +38,26 @@ def test_every_cell_round_trips():
 def test_cell_size_must_be_positive_metres(size):
     with pytest.raises(ValueError, match="cell_size"):
         MetricFrame(height=4, width=4, cell_size=size)
+
+
+def test_viewer_map_and_markers_lie_in_the_frame_and_replay_checks_them_there():
+    """The recorded map and agent markers use the world's cell size and origin (as entity poses
+    and robots do); `formic replay --verify` reads the frame back from the map."""
+    pytest.importorskip("rclpy")
+    from builtin_interfaces.msg import Time
+
+    from formic_record import checks
+    from formic_ros import viewer_msgs
+    from formic_world import make_world
+
+    world = make_world(height=16, width=16, n_agents=4, seed=3)
+    frame = MetricFrame(height=16, width=16, cell_size=0.5, origin_x=-2.0, origin_y=1.0)
+    grid = viewer_msgs.occupancy_grid(world, Time(), frame)
+    markers = viewer_msgs.agent_markers(world, Time(), frame)
+    assert (grid.info.resolution, grid.info.origin.position.x, grid.info.origin.position.y) == (0.5, -2.0, 1.0)
+    agents = next(m for m in markers.markers if m.ns == "agents")
+    assert [(p.x, p.y) for p in agents.points] == [frame.cell_centre(r, c) for r, c in world.pos]
+    assert agents.scale.x == pytest.approx(0.45)
+    assert checks.check_map(grid, world) is None
+    assert checks.check_markers(markers, world, checks.map_frame(grid, world)) is None
+    assert "markers[agents].points" in checks.check_markers(markers, world)  # read in 1 m cells: wrong

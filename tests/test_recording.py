@@ -49,6 +49,7 @@ from formic_agent.policy import AgentBatch
 from formic_ros import convert, qos, viewer_msgs
 import formic_topics as topics
 from formic_world import World, WorldConfig, generate_scenario
+from formic_world.metric_frame import MetricFrame
 
 steps, rate_hz, recorders = int(sys.argv[1]), float(sys.argv[2]), int(sys.argv[3])
 N = 4
@@ -85,8 +86,9 @@ def state():
     if world.t % 10 == 0 or world.done:
         stamp = viewer_msgs.sim_time(world.t, 0.1)
         publish("score", Float64(data=world.score))
-        publish("map", viewer_msgs.occupancy_grid(world, stamp))
-        publish("agent_markers", viewer_msgs.agent_markers(world, stamp))
+        frame = MetricFrame(*world.grid.shape)
+        publish("map", viewer_msgs.occupancy_grid(world, stamp, frame))
+        publish("agent_markers", viewer_msgs.agent_markers(world, stamp, frame))
 
 publish("scenario", convert.encode_scenario(scenario, "random:0-3"))
 result = world.last_result

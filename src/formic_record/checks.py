@@ -14,6 +14,7 @@ from formic_record.compact import decode_compact
 from formic_topics import ENCODING_COMPACT, ENCODING_FLOAT32
 from formic_world import World
 from formic_world.geometry import CACHE, RESOURCE
+from formic_world.metric_frame import MetricFrame
 
 
 def stamp_ns(stamp) -> int:
@@ -142,22 +143,35 @@ def occupancy_values(world: World) -> np.ndarray:
     return values[::-1]
 
 
+def map_frame(msg, world: World) -> MetricFrame | None:
+    """The metric frame a recorded map declares (its resolution and origin), or None if unusable."""
+    try:
+        return MetricFrame(*world.grid.shape, float(msg.info.resolution), float(msg.info.origin.position.x),
+                           float(msg.info.origin.position.y))
+    except ValueError:
+        return None
+
+
 def check_map(msg, world: World) -> str | None:
     height, width = world.grid.shape
+    if map_frame(msg, world) is None:
+        return f"info.resolution: {msg.info.resolution} is no cell size"
     return _scalars([("info.width", msg.info.width, width, np.uint32),
                      ("info.height", msg.info.height, height, np.uint32)]) or \
         _field("data", msg.data, occupancy_values(world), np.int8)
 
 
-def check_markers(msg, world: World) -> str | None:
-    height = world.grid.shape[0]
+def check_markers(msg, world: World, frame: MetricFrame | None = None) -> str | None:
+    """Markers at their cells' centres in ``frame`` (the same step's map's; 1 m cells from the
+    origin when the step has no map)."""
+    frame = frame or MetricFrame(*world.grid.shape)
     expected = {"agents": world.pos, "resources": world.resource_pos}
     for marker in msg.markers:
         cells = expected.get(marker.ns)
         if cells is None:
             continue
         got = np.array([(p.x, p.y) for p in marker.points], dtype=np.float64).reshape(-1, 2)
-        want = np.stack([cells[:, 1] + 0.5, height - 1 - cells[:, 0] + 0.5], axis=1).astype(np.float64)
+        want = np.array([frame.cell_centre(int(r), int(c)) for r, c in cells], dtype=np.float64).reshape(-1, 2)
         problem = _field(f"markers[{marker.ns}].points", got, want.reshape(-1, 2), np.float64)
         if problem:
             return problem

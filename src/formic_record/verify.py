@@ -130,6 +130,7 @@ def _collect(recording: Recording, report: VerifyReport):
                 continue
             last = step
             pending[ep][step].append((topic, lambda m, w: checks.check_clock(m, w.t, dt), msg))
+    maps: dict[tuple[int, int], object] = {}  # (episode, step) -> its map: the markers' frame
     for ep, items in stamped.items():
         steps = []
         for topic, check, msg, stamp in items:
@@ -137,9 +138,14 @@ def _collect(recording: Recording, report: VerifyReport):
             if step is None:
                 report.mismatch(topic, step, "header.stamp is not the sim time of a step")
                 continue
+            if check is checks.check_markers:
+                key = (ep, step)
+                check = lambda m, w, key=key: checks.check_markers(  # noqa: E731
+                    m, w, checks.map_frame(maps[key], w) if key in maps else None)
             pending[ep][step].append((topic, check, msg))
             if check is checks.check_map:
                 steps.append(step)
+                maps[(ep, step)] = msg
         if scores[ep] and len(scores[ep]) != len(steps):  # a map lost (latched, depth 1) or cut off
             report.problems.append(f"{len(scores[ep])} score messages but {len(steps)} maps: scores not checked")
             continue

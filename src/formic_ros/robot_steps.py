@@ -157,7 +157,7 @@ def robot_link(node, scenario) -> RobotLink:
     outside = [r for r in opts.robots if not 0 <= r < cfg.n_agents]
     if outside:
         raise RunError(f"robots {outside} are not agents of this team of {cfg.n_agents}")
-    frame = MetricFrame(cfg.height, cfg.width, opts.cell_size, opts.origin_x, opts.origin_y)
+    frame = node.metric_frame
     on_poses = None
     if node.view is not None:
         from formic_view.robots import RobotLayer

@@ -99,7 +99,6 @@ class SimulationControl:
         self.world, self.executor = world, executor
         opts = world.options
         self.config = world.scenario.config
-        self.frame = MetricFrame(self.config.height, self.config.width, opts.cell_size, opts.origin_x, opts.origin_y)
         self.state = SimulationState.STATE_PAUSED if opts.paused else SimulationState.STATE_PLAYING
         self.stays = stays  # after an episode: stay up until told to quit (else leave)
         self.episode_ended = False
@@ -266,7 +265,7 @@ class SimulationControl:
 
     def _features(self, request: GetSimulatorFeatures.Request,
                   response: GetSimulatorFeatures.Response) -> GetSimulatorFeatures.Response:
-        f = self.frame
+        f = self.world.metric_frame
         response.features.features = list(FEATURES)
         response.features.custom_info = (
             f"ForMIC world: entities in frame 'map', x east, y north, {f.cell_size:g} m cells, grid's south-west "
@@ -324,12 +323,12 @@ class SimulationControl:
         """The entities and the sim time of one consistent world state."""
         with self.world.core_lock:
             world = self.world.world
-            return world_entities(world, self.frame), viewer_msgs.sim_time(world.t, self.world.options.dt)
+            return world_entities(world, self.world.metric_frame), viewer_msgs.sim_time(world.t, self.world.options.dt)
 
     def _entities(self, request: GetEntities.Request, response: GetEntities.Response) -> GetEntities.Response:
         entities, _ = self._snapshot()
         try:
-            response.entities = [e.name for e in select(entities, request.filters, self.frame.cell_size)]
+            response.entities = [e.name for e in select(entities, request.filters, self.world.metric_frame.cell_size)]
             response.result = result()
         except FilterError as exc:
             response.result = result(exc.code, str(exc))
@@ -339,7 +338,7 @@ class SimulationControl:
                          response: GetEntitiesStates.Response) -> GetEntitiesStates.Response:
         entities, stamp = self._snapshot()
         try:
-            chosen = select(entities, request.filters, self.frame.cell_size)
+            chosen = select(entities, request.filters, self.world.metric_frame.cell_size)
         except FilterError as exc:
             response.result = result(exc.code, str(exc))
             return response

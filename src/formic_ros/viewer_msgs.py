@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 from builtin_interfaces.msg import Time
-from geometry_msgs.msg import Point, Vector3
+from geometry_msgs.msg import Point, Pose, Vector3
 from nav_msgs.msg import MapMetaData, OccupancyGrid
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import ColorRGBA, Header
@@ -13,6 +13,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from formic_world import World
 from formic_world.geometry import CACHE, RESOURCE
+from formic_world.metric_frame import MAP_FRAME, MetricFrame
 
 from .wire import typed
 
@@ -26,31 +27,35 @@ def clock(step: int, dt: float) -> Clock:
     return Clock(clock=sim_time(step, dt))
 
 
-def occupancy_grid(world: World, stamp: Time, frame: str = "map") -> OccupancyGrid:
-    """Grid and pheromone as an OccupancyGrid: free cells 0-60 by pheromone, resources 80,
-    caches 90, obstacles 100. Map y grows northwards (row 0 is the top row), 1 m a cell."""
+def occupancy_grid(world: World, stamp: Time, frame: MetricFrame) -> OccupancyGrid:
+    """Grid and pheromone as an OccupancyGrid in the ``map`` frame (``frame``'s cell size and
+    origin; data row 0 is the southern row): free cells 0-60 by pheromone, resources 80,
+    caches 90, obstacles 100."""
     height, width = world.grid.shape
     values = np.rint(np.clip(world.visible_pheromone(), 0.0, 1.0) * 60).astype(np.int8)
     values[world.grid == 1] = 100
     values[world.grid == RESOURCE] = 80
     values[world.grid == CACHE] = 90
-    return OccupancyGrid(header=Header(stamp=stamp, frame_id=frame), data=typed("b", values[::-1], np.int8),
-                         info=MapMetaData(map_load_time=stamp, resolution=1.0, width=width, height=height))
+    origin = Pose(position=Point(x=frame.origin_x, y=frame.origin_y))
+    return OccupancyGrid(header=Header(stamp=stamp, frame_id=MAP_FRAME), data=typed("b", values[::-1], np.int8),
+                         info=MapMetaData(map_load_time=stamp, resolution=frame.cell_size, width=width,
+                                          height=height, origin=origin))
 
 
 def _colour(r: float, g: float, b: float) -> ColorRGBA:
     return ColorRGBA(r=r, g=g, b=b, a=1.0)
 
 
-def agent_markers(world: World, stamp: Time, frame: str = "map") -> MarkerArray:
-    """Agents (orange when carrying, blue when empty) and resources (green) as cube lists."""
-    height = world.grid.shape[0]
+def agent_markers(world: World, stamp: Time, frame: MetricFrame) -> MarkerArray:
+    """Agents (orange when carrying, blue when empty) and resources (green) as cube lists at
+    their cells' centres in the ``map`` frame."""
     empty, loaded, food = _colour(0.2, 0.4, 1.0), _colour(1.0, 0.55, 0.0), _colour(0.1, 0.8, 0.2)
+    side = 0.9 * frame.cell_size
 
     def cubes(marker_id: int, ns: str, cells: np.ndarray, colours: list[ColorRGBA]) -> Marker:
-        points = [Point(x=float(c) + 0.5, y=float(height - 1 - r) + 0.5, z=0.5) for r, c in cells]
-        return Marker(header=Header(stamp=stamp, frame_id=frame), ns=ns, id=marker_id, type=Marker.CUBE_LIST,
-                      action=Marker.ADD, scale=Vector3(x=0.9, y=0.9, z=0.9), points=points, colors=colours)
+        points = [Point(x=x, y=y, z=side / 2) for x, y in (frame.cell_centre(int(r), int(c)) for r, c in cells)]
+        return Marker(header=Header(stamp=stamp, frame_id=MAP_FRAME), ns=ns, id=marker_id, type=Marker.CUBE_LIST,
+                      action=Marker.ADD, scale=Vector3(x=side, y=side, z=side), points=points, colors=colours)
 
     return MarkerArray(markers=[
         cubes(0, "agents", world.pos, [loaded if c else empty for c in world.carrying]),

@@ -30,6 +30,7 @@ from formic_agent.policy import AgentBatch
 from formic_runtime.episode import EpisodeStats
 import formic_topics as topics
 from formic_world import Scenario, StepResult, World
+from formic_world.metric_frame import MetricFrame
 
 from .graph import RecorderReports, recorders_present, settle_discovery, wait_for_recorders
 from . import convert, qos, viewer_msgs
@@ -115,8 +116,16 @@ class WorldNode(Node):
 
             self.view = LiveView(port=options.view_port, dt=options.dt)
             self.get_logger().info(announcement(self.view.url))
-        self.robots = robot_link(self, scenario) if options.robots else None  # robot agents (docs/robots.md)
+        self.robots = None  # robot agents (docs/robots.md): linked once the scenario is loaded
         self.load(scenario)
+        if options.robots:
+            self.robots = robot_link(self, scenario)
+
+    @property
+    def metric_frame(self) -> MetricFrame:
+        """Where the current scenario's grid lies in the ``map`` frame (entity poses, robots, viewers)."""
+        cfg, opts = self.scenario.config, self.options
+        return MetricFrame(cfg.height, cfg.width, opts.cell_size, opts.origin_x, opts.origin_y)
 
     def load(self, scenario: Scenario) -> None:
         """The scenario of the next episode, published (latched) at once."""
@@ -192,8 +201,8 @@ class WorldNode(Node):
         if every > 0 and (final or world.t % every == 0 and any(p.get_subscription_count() for p in viewers)):
             stamp = viewer_msgs.sim_time(world.t, self.options.dt)
             self.score_pub.publish(Float64(data=world.score))
-            self.map_pub.publish(viewer_msgs.occupancy_grid(world, stamp))
-            self.markers_pub.publish(viewer_msgs.agent_markers(world, stamp))
+            self.map_pub.publish(viewer_msgs.occupancy_grid(world, stamp, self.metric_frame))
+            self.markers_pub.publish(viewer_msgs.agent_markers(world, stamp, self.metric_frame))
 
     # ---------------------------------------------------------------------- waiting
     def _wait_for_subscribers(self, executor) -> None:
