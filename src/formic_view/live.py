@@ -14,8 +14,8 @@ live channel                schema                      recorded counterpart
 ``/formic/state``           JSON ``formic.State``       ``/formic/state`` (``WorldState``)
 ==========================  ==========================  =====================================
 
-Frames: ``map``, 1 m a cell, x east along the columns, y north (row 0 of the world is the top),
-as the recorded map and markers. Message times are sim time (step x ``dt``), so the timeline
+Frames: ``map``, one unit a cell, x east along the columns, y north (row 0 of the world is the
+top): the recorded map and markers' layout, which are in metres (the world's ``--cell-size``). Message times are sim time (step x ``dt``), so the timeline
 and plots read the same as a recording's ``/clock``.
 
 The run must not wait for the viewer: :meth:`LiveView.publish` returns at once unless the
