@@ -89,7 +89,7 @@ def test_a_recipe_runs_every_stage_then_chooses_on_validation_and_resumes_after_
     assert {p: p.stat().st_mtime_ns for p in parts.glob("*/*.pt")} == stamps
     # another seed is another run
     result = CliRunner().invoke(cli, ["train", "--recipe", "smoke", "--seed", "2", "--run-dir", str(parts)])
-    assert result.exit_code == 1 and "another recipe, switch or seed" in result.output
+    assert result.exit_code == 1 and "another recipe, switch, scale or seed" in result.output
 
 
 SMOKE_TEXT = (ROOT / "recipes" / "smoke.toml").read_text()
@@ -189,14 +189,14 @@ def test_a_run_resumes_across_comment_edits_but_not_across_switches(tmp_path):
     edited.write_text("# a new comment\n" + SMOKE_TEXT.replace("budget_cpu_hours = 0.01", "budget_cpu_hours = 0.02"))
     _Run(load_recipe("smoke"), tmp_path / "run", 1, print)
     _Run(load_recipe(str(edited)), tmp_path / "run", 1, print)  # accepted
-    with pytest.raises(Exception, match="another recipe, switch or seed"):
+    with pytest.raises(Exception, match="another recipe, switch, scale or seed"):
         _Run(load_recipe("smoke", "blind"), tmp_path / "run", 1, print)
     legacy = tmp_path / "legacy"
     legacy.mkdir()
     (legacy / "recipe.json").write_text(json.dumps({"recipe": str(ROOT / "recipes" / "smoke.toml"), "seed": 1,
                                                     "text": SMOKE_TEXT}))
     _Run(load_recipe(str(edited)), legacy, 1, print)
-    with pytest.raises(Exception, match="another recipe, switch or seed"):
+    with pytest.raises(Exception, match="another recipe, switch, scale or seed"):
         _Run(load_recipe("smoke", "all-learn"), legacy, 1, print)
 
 
@@ -207,3 +207,24 @@ def test_a_recipe_trained_without_pheromones_is_validated_without_them(tmp_path)
     validated = [line for line in lines if line.startswith("validation: ")]
     assert len(validated) == 2 and all("(pheromone channel empty)" in line for line in validated)
     assert selection["channel_empty"]["less_by_team"] == {"2": 0.0, "3": 0.0}
+
+
+def test_a_scaled_recipe_keeps_every_stage_and_schedule_in_proportion():
+    """`--scale F` (rows of a table at one smaller budget): every stage's episodes and mean
+    windows times F in whole episode sets, and its (start, end) schedules with them; a schedule
+    that ends after its start still does (the crowd stage's filter, off after episode 1)."""
+    full, half = load_recipe("paper"), load_recipe("paper", scale=0.5)
+    assert [s.name for s in half.stages] == [s.name for s in full.stages] and half.identity != full.identity
+    assert [s.episodes for s in half.stages] == [152, 300, 164, 104, 248, 168]
+    assert [s.average for s in half.stages] == [None, None, None, (48, 8), (192, 8), (120, 8)]
+    reference, crowd = half.stages[1].settings, half.stages[2].settings
+    assert (reference["filter_anneal_start"], reference["filter_anneal_end"]) == (0, 300)
+    assert (crowd["filter_anneal_start"], crowd["filter_anneal_end"]) == (0, 1)
+    basics = stage_config(half, 0, Path("run"), seed=1)
+    assert (basics.filter_anneal_start, basics.filter_anneal_end, basics.curriculum_start, basics.curriculum_end) == \
+        (20, 150, 30, 150)  # the cpu preset's 40-300 and 60-300, halved
+    assert half.budget_cpu_hours == full.budget_cpu_hours / 2
+    for bad in ("0", "1.5"):
+        result = CliRunner().invoke(cli, ["train", "--recipe", "smoke", "--scale", bad, "--seed", "1",
+                                          "--run-dir", "unused"])
+        assert result.exit_code == 1 and "the scale must be in (0, 1]" in result.output

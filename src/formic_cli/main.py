@@ -244,13 +244,16 @@ def bench_decide(size, teams, steps, seed, policy, model, threads, as_json) -> N
 @click.option("--seed", type=int, help="The recipe's seed (with --recipe; a single run: --set seed=N).")
 @click.option("--switch", default="", help="With --recipe: one of its [switch.NAME] tables laid over every "
               "stage (e.g. a row of the paper's ablation tables).")
+@click.option("--scale", type=float, default=1.0, show_default=True,
+              help="With --recipe: every stage's episodes, means and schedules times this, in (0, 1] "
+                   "(table rows at one smaller budget).")
 @click.pass_context
-def train(ctx, preset, run_dir, episodes, minutes, fresh, overrides, export, recipe, seed, switch) -> None:
+def train(ctx, preset, run_dir, episodes, minutes, fresh, overrides, export, recipe, seed, switch, scale) -> None:
     """Train a policy; checkpoints to RUN_DIR/latest.pt, TensorBoard logs to RUN_DIR/tb.
 
     Resumes from RUN_DIR/latest.pt when it exists. `--episodes 0 --export FILE` only exports."""
-    if recipe is not None or seed is not None or switch:
-        _train_recipe(ctx, recipe, seed, switch, Path(run_dir))
+    if recipe is not None or seed is not None or switch or scale != 1:
+        _train_recipe(ctx, recipe, seed, switch, scale, Path(run_dir))
         return
     from formic_trainer.config import make_config, parse_overrides
     from formic_trainer.train import Trainer, export_model
@@ -264,7 +267,8 @@ def train(ctx, preset, run_dir, episodes, minutes, fresh, overrides, export, rec
         click.echo(f"exported {export}")
 
 
-def _train_recipe(ctx: click.Context, recipe: str | None, seed: int | None, switch: str, run_dir: Path) -> None:
+def _train_recipe(ctx: click.Context, recipe: str | None, seed: int | None, switch: str, scale: float,
+                  run_dir: Path) -> None:
     """`formic train --recipe`: the recipe sets every stage, so the single-run options are refused."""
     from click.core import ParameterSource
 
@@ -278,7 +282,7 @@ def _train_recipe(ctx: click.Context, recipe: str | None, seed: int | None, swit
     if given:
         raise click.UsageError(f"--recipe sets every stage itself: drop {', '.join(given)}")
     with click_errors(TypeError, ValueError, interrupted="interrupted: rerun the same command to resume"):
-        run_recipe(load_recipe(recipe, switch), run_dir, seed, echo=click.echo)
+        run_recipe(load_recipe(recipe, switch, scale), run_dir, seed, echo=click.echo)
 
 
 def _register_optional() -> None:

@@ -40,6 +40,8 @@ SELECTION_RULE = ("the candidate with the highest mean food over all validation 
 DERIVED = {"preset": "the recipe's preset", "seed": "--seed", "total_episodes": "the stage's episodes",
            "init_weights": "the stage's start"}
 _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]*")
+# TrainConfig (start, end) schedules counted in a stage's episodes: a scaled recipe scales them
+SCHEDULES = (("filter_anneal_start", "filter_anneal_end"), ("curriculum_start", "curriculum_end"))
 
 
 class RecipeError(InputError):
@@ -81,6 +83,7 @@ class Recipe:
     validation: Validation
     switch: str = ""  # the switch applied to every stage ("" = the recipe as written)
     switches: tuple[str, ...] = ()  # every switch the file defines
+    scale: float = 1.0  # every stage's episodes, means and schedules times this (an equal, smaller budget)
 
     @property
     def episodes(self) -> int:
@@ -102,11 +105,14 @@ def recipe_path(spec: str) -> Path:
     return path if path.suffix == ".toml" or len(path.parts) > 1 else RECIPES / f"{spec}.toml"
 
 
-def load_recipe(spec: str, switch: str = "") -> Recipe:
+def load_recipe(spec: str, switch: str = "", scale: float = 1.0) -> Recipe:
     """Read and check a recipe, with one of its switches (``[switch.NAME]``: settings laid over
-    every stage, e.g. one row of the paper's ablation tables) when ``switch`` names one. Every
-    stage's configuration is built once here, so a mistake fails before any training, in one
-    line naming the file."""
+    every stage, e.g. one row of the paper's ablation tables) when ``switch`` names one, and
+    every stage's episodes, checkpoint means and episode schedules times ``scale`` (in (0, 1]:
+    rows of a table at one smaller budget). Every stage's configuration is built once here, so
+    a mistake fails before any training, in one line naming the file."""
+    if not 0 < scale <= 1:
+        raise RecipeError(f"the scale must be in (0, 1], not {scale}")
     path = recipe_path(spec)
     try:
         text = path.read_text()
@@ -114,7 +120,7 @@ def load_recipe(spec: str, switch: str = "") -> Recipe:
         known = ", ".join(sorted(p.stem for p in RECIPES.glob("*.toml")))
         raise RecipeError(f"{path}: cannot read ({exc.strerror}); recipes here: {known}") from None
     try:
-        return _parse(tomllib.loads(text), path, text, switch)
+        return _parse(tomllib.loads(text), path, text, switch, scale)
     except tomllib.TOMLDecodeError as exc:
         raise RecipeError(f"{path}: not valid TOML ({exc})") from None
     except (TypeError, ValueError) as exc:  # RecipeError, or a TrainConfig's own check
@@ -187,7 +193,23 @@ def _switch_settings(data: dict, switch: str, defaults: TrainConfig) -> tuple[di
     return chosen, tuple(switches)
 
 
-def _parse(data: dict, path: Path, text: str, switch: str = "") -> Recipe:
+def _scaled(count: int, scale: float, unit: int) -> int:
+    """``count * scale`` to the nearest multiple of ``unit`` (at least one unit)."""
+    return max(unit, unit * round(count * scale / unit))
+
+
+def _scaled_schedules(cfg: TrainConfig, scale: float) -> dict:
+    """Every schedule's start and end times ``scale``; one that has an end after its start keeps
+    one (an end equal to the start means "no schedule", e.g. the filter held on)."""
+    out = {}
+    for start_key, end_key in SCHEDULES:
+        start, end = getattr(cfg, start_key), getattr(cfg, end_key)
+        out[start_key] = round(start * scale)
+        out[end_key] = max(round(end * scale), out[start_key] + 1) if end > start else out[start_key]
+    return out
+
+
+def _parse(data: dict, path: Path, text: str, switch: str = "", scale: float = 1.0) -> Recipe:
     _keys(data, "recipe", {"preset", "budget_cpu_hours", "candidates", "validation", "stage"}, {"switch"})
     if data["preset"] not in PRESETS:
         raise RecipeError(f"preset {data['preset']!r} is not one of {', '.join(PRESETS)}")
@@ -223,6 +245,11 @@ def _parse(data: dict, path: Path, text: str, switch: str = "") -> Recipe:
         if any(n % worlds for n in (episodes, *(average or ()))):
             raise RecipeError(f"{where}: episodes and average must be multiples of its {worlds} worlds "
                               "(one episode set plays one episode in each)")
+        if scale != 1:
+            episodes = _scaled(episodes, scale, worlds)
+            if average is not None:
+                average = (min(_scaled(average[0], scale, average[1]), episodes), average[1])
+            staged = staged | _scaled_schedules(cfg, scale)
         stages.append(Stage(name, episodes, start, staged, average))
     candidates = data["candidates"]
     if not isinstance(candidates, list) or not candidates or len(set(candidates)) < len(candidates):
@@ -236,8 +263,8 @@ def _parse(data: dict, path: Path, text: str, switch: str = "") -> Recipe:
     validation = Validation(_number(table, "seed", "validation", least=0), _number(table, "size", "validation"),
                             tuple(teams), _number(table, "scenarios", "validation"),
                             _number(table, "steps", "validation"))
-    return Recipe(path, text, data["preset"], _number(data, "budget_cpu_hours", "recipe", float, 0),
-                  tuple(stages), tuple(candidates), validation, switch, switch_names)
+    return Recipe(path, text, data["preset"], _number(data, "budget_cpu_hours", "recipe", float, 0) * scale,
+                  tuple(stages), tuple(candidates), validation, switch, switch_names, scale)
 
 
 def _reference(ref: str, stages: dict[str, Stage], where: str) -> None:
@@ -303,9 +330,9 @@ class _Run:
         held = json.loads(claim.read_text()) if claim.exists() else None
         if held is None:
             _write_json(claim, {"recipe": str(recipe.source), "seed": seed, "switch": recipe.switch,
-                                "identity": recipe.identity, "text": recipe.text})
+                                "scale": recipe.scale, "identity": recipe.identity, "text": recipe.text})
         elif (held["seed"], _held_identity(held)) != (seed, recipe.identity):
-            raise RecipeError(f"{run_dir} holds a run of another recipe, switch or seed ({claim}): "
+            raise RecipeError(f"{run_dir} holds a run of another recipe, switch, scale or seed ({claim}): "
                               "use a new --run-dir")
 
     def budget(self, episodes: int, cpu_seconds: float) -> str:
