@@ -38,7 +38,6 @@ from simulation_interfaces.srv import (GetEntities, GetEntitiesStates, GetEntity
                                        SetSimulationState, StepSimulation)
 
 from formic_world import Scenario, generate_scenario
-from formic_world.metric_frame import MetricFrame
 
 from . import viewer_msgs
 from .parameters import declare_settings, settings_of
