@@ -31,6 +31,7 @@ from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.qos import QoSProfile
 from simulation_interfaces.action import SimulateSteps
 from simulation_interfaces.msg import Result, SimulationState, SimulatorFeatures
 from simulation_interfaces.srv import (GetEntities, GetEntitiesStates, GetEntityInfo, GetEntityState,
@@ -68,6 +69,9 @@ FEATURES = (  # exactly what the services above do
 FULL_RESET = ResetSimulation.Request.SCOPE_TIME | ResetSimulation.Request.SCOPE_STATE  # no spawned entities here
 STATE_NAMES = {SimulationState.STATE_STOPPED: "stopped", SimulationState.STATE_PLAYING: "playing",
                SimulationState.STATE_PAUSED: "paused", SimulationState.STATE_QUITTING: "quitting"}
+# feedback samples the action keeps for a slow client (rclpy's default 10 lost most of a fast
+# 20-step goal's feedback on 2 busy cores); a client still drops feedback that trails the result
+FEEDBACK_DEPTH = 100
 IDLE_WAIT_S = 0.01  # paused: how long the world's thread waits for a command between spins
 QUIT_LINGER_S = 0.5  # after STATE_QUITTING, so the answer goes out before the node does
 RESET_PARAMETERS = {
@@ -119,7 +123,8 @@ class SimulationControl:
         for name, srv_type in SERVICES.items():
             self.node.create_service(srv_type, name, handlers[name], callback_group=group)
         self.action = ActionServer(self.node, SimulateSteps, SIMULATE_STEPS_ACTION, self._simulate_steps,
-                                   cancel_callback=lambda _goal: CancelResponse.ACCEPT, callback_group=group)
+                                   cancel_callback=lambda _goal: CancelResponse.ACCEPT, callback_group=group,
+                                   feedback_pub_qos_profile=QoSProfile(depth=FEEDBACK_DEPTH))
         self.control_executor = MultiThreadedExecutor(num_threads=3, context=self.node.context)
         self.control_executor.add_node(self.node)
         self.thread = threading.Thread(target=self._spin_control, name="world_control", daemon=True)
