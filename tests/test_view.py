@@ -75,7 +75,7 @@ class FoxgloveClient:
 
     def await_channels(self, topics, timeout_s: float = 20.0) -> None:
         deadline = time.monotonic() + timeout_s
-        while {c["topic"] for c in self.channels.values()} < set(topics):
+        while not set(topics) <= {c["topic"] for c in self.channels.values()}:  # every one advertised
             frame = self.ws.recv(timeout=max(0.01, deadline - time.monotonic()))
             if isinstance(frame, str):
                 self._control(frame)
