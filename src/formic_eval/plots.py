@@ -75,7 +75,13 @@ def plot_food_vs_team(cells: list[dict], path: Path) -> Path:
         _team_axis(ax, teams)
         ax.set_title(f"{panel[0]} resources, {panel[1] * 100:g}% obstacles")
         ax.set_ylabel("food deposited")
-        ax.legend(fontsize=7)
+    # one legend for every panel, under them: inside a panel it hid the lines
+    legend = {}
+    for ax in axes[0]:
+        for handle, label in zip(*ax.get_legend_handles_labels()):
+            legend.setdefault(label, handle)
+    fig.legend(list(legend.values()), list(legend), loc="upper center", bbox_to_anchor=(0.5, 0.0),
+               ncol=min(5, len(legend)), fontsize=8, frameon=False)
     size, steps = cells[0]["size"], cells[0]["steps"]
     fig.suptitle(f"Food deposited in {steps} steps, {size}x{size} world (mean ± std)")
     fig.subplots_adjust(top=0.85, wspace=0.25)
