@@ -165,9 +165,26 @@ class ForMICNet(nn.Module):
         zeros = torch.zeros(1, batch, self.config.rnn)
         return zeros, zeros.clone()
 
+    def encode(self, obs: torch.Tensor) -> torch.Tensor:
+        """The encoder's output f (B, fc) for obs (B, 8, V, V).
+
+        Without gradients (acting, evaluation) the convolutions run on oneDNN's blocked layout
+        (the input converted once, the layers unchanged): 1.3-1.6x faster than the eager
+        channels-last path at 352 frames on one thread, and the same bits for any batch size and
+        thread count (docs/training.md, "Where training time goes"). The values differ from the
+        eager path's by rounding only (~1e-8). With gradients (the PPO update) the eager path
+        runs: autograd through the blocked layout is no faster (measured)."""
+        if torch.is_grad_enabled() or not torch.backends.mkldnn.is_available():
+            return self.encoder(obs)
+        *convolutions, flatten, relu = self.encoder
+        x = obs.contiguous().to_mkldnn()
+        for layer in convolutions:
+            x = layer(x)
+        return relu(flatten(x.to_dense()))
+
     def features(self, obs: torch.Tensor, extra: torch.Tensor | None) -> torch.Tensor:
         """Per-frame features before the LSTM; obs (B, 8, V, V)."""
-        f = self.encoder(obs)
+        f = self.encode(obs)
         columns = self.extra_columns()
         if columns and extra is None:
             raise ValueError("this network reads extra inputs and none were given")
