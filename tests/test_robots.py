@@ -308,7 +308,7 @@ def test_mixed_team_of_simulated_agents_and_simulated_robots_forages_and_its_rec
     try:
         run = spawner.formic(
             "run", "run", "--agents", "32", "--size", "32", "--steps", str(MIXED_STEPS), "--seed", str(MIXED_SEED),
-            "--robots", "28-31", "--robots-sim", "--cell-size", "0.5", "--robot-speed", "2.0", "--robot-turn", "8",
+            "--robots", "28-31", "--robots-sim", "--cell-size", "0.5", "--robot-max-speed", "2.0", "--robot-max-turn", "8",
             "--robot-tolerance", str(TOLERANCE), "--robot-cell-s", "2.5", "--robot-stall-rate", "0.02",
             "--record", str(recording), "--view", "--view-port", str(port), "--log-dir", str(tmp_path / "logs"),
             "--timeout", "400", "--json", limit_s=460)

@@ -224,6 +224,7 @@ def test_a_paused_world_steps_by_service_and_action_resets_with_a_seed_and_match
         # seed 0: 3 single steps and one of 7 by service (step 0 waits for the host), 20 by the action
         assert [client.step(1).result for _ in range(3)] == [OK] * 3
         assert client.step(7).result == OK
+        time.sleep(1.0)  # held paused: not stepping time
         assert client.set_state(PAUSED).result == SetSimulationState.Response.ALREADY_IN_TARGET_STATE
         too_many = client.step(STEPS)
         assert too_many.result == FAILED and "20 steps left" in too_many.error_message
@@ -234,6 +235,9 @@ def test_a_paused_world_steps_by_service_and_action_resets_with_a_seed_and_match
         expected = sim_world(0)
         assert first["state_digest"] == expected.state_digest() and first["missed_actions"] == 0
         assert first["rejected_actions"] == {}
+        stepping_s = (STEPS - 1) / first["steps_per_s"]
+        assert first["paused_s"] >= 1.0
+        assert first["wall_s"] - first["startup_s"] == pytest.approx(stepping_s + first["paused_s"], abs=1e-6)
         assert client.agent_cells(frame).tolist() == expected.pos.tolist()
         assert client.step(1).result == FAILED  # the episode is over, the world stays paused
         assert client.state() == PAUSED

@@ -37,8 +37,10 @@ run_robot_options = option_group(
     world_robot_options,
     click.option("--robots-sim", is_flag=True, help="Simulate the robots (formic robots-sim) instead of real ones."),
     click.option("--cell-size", default=1.0, show_default=True, help="Metres a grid cell (the map frame)."),
-    click.option("--robot-speed", default=0.5, show_default=True, help="Robots' top speed, m/s."),
-    click.option("--robot-turn", default=2.5, show_default=True, help="Robots' top turn rate, rad/s."),
+    click.option("--robot-max-speed", default=0.5, show_default=True,
+                 help="Robots' top speed, m/s (formic robot's and robots-sim's --max-speed)."),
+    click.option("--robot-max-turn", default=2.5, show_default=True,
+                 help="Robots' top turn rate, rad/s (formic robot's and robots-sim's --max-turn)."),
     click.option("--robot-stall-rate", default=0.0, show_default=True,
                  help="Simulated robots: stalls per second of driving (moves then fail)."),
 )
@@ -49,7 +51,7 @@ def robot_run_options(fields: dict):
     from formic_ros.robot_launch import RobotRunOptions
 
     robots, simulate = fields.pop("robots"), fields.pop("robots_sim")
-    settings = {name: fields.pop(f"robot_{name}") for name in ("tolerance", "cell_s", "speed", "turn", "stall_rate")}
+    settings = {name: fields.pop(f"robot_{name}") for name in ("tolerance", "cell_s", "max_speed", "max_turn", "stall_rate")}
     cell_size = fields.pop("cell_size")
     if not robots:
         if simulate:

@@ -13,8 +13,7 @@ import numpy as np
 from formic_record.compact import decode_compact
 from formic_topics import ENCODING_COMPACT, ENCODING_FLOAT32
 from formic_world import World
-from formic_world.geometry import CACHE, RESOURCE
-from formic_world.metric_frame import MetricFrame
+from formic_world.metric_frame import MetricFrame, occupancy_values
 
 
 def stamp_ns(stamp) -> int:
@@ -132,15 +131,6 @@ def check_state(msg, world: World) -> str | None:
 def check_clock(msg, step: int, dt: float) -> str | None:
     got, want = stamp_ns(msg.clock), sim_time_ns(step, dt)
     return None if got == want else f"clock: recorded {got} ns, expected {want} ns (step {step}, dt {dt})"
-
-
-def occupancy_values(world: World) -> np.ndarray:
-    """:func:`formic_ros.viewer_msgs.occupancy_grid`'s data, as int8 rows bottom-up."""
-    values = np.rint(np.clip(world.visible_pheromone(), 0.0, 1.0) * 60).astype(np.int8)
-    values[world.grid == 1] = 100
-    values[world.grid == RESOURCE] = 80
-    values[world.grid == CACHE] = 90
-    return values[::-1]
 
 
 def map_frame(msg, world: World) -> MetricFrame | None:

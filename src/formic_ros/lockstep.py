@@ -187,9 +187,10 @@ class Lockstep:
     def summary(self, book, scenario, label: str, clock: dict) -> dict:
         """``formic sim``'s summary (``book``: the episode's :class:`EpisodeStats`) plus what
         the distributed run adds: misses, rejections, mode and speed (``clock``: monotonic and
-        CPU times of the start, the first step and the end)."""
+        CPU times of the start, the first step and the end, and the seconds a simulation client
+        held the world paused after the first step, which do not count as stepping)."""
         steps = scenario.config.episode_steps - 1  # timed steps (after step 0)
-        stepping_s = clock["ended"] - clock["stepping_from"]
+        stepping_s = clock["ended"] - clock["stepping_from"] - clock.get("paused_s", 0.0)
         return book.summary(scenario, label) | dict(
             food_curve=book.food_curve.tolist(),
             missed_actions=int(self.missed.sum()),
@@ -199,6 +200,7 @@ class Lockstep:
             mode="free-running" if self.rate_hz else "lockstep",
             steps_per_s=steps / stepping_s if steps > 0 and stepping_s > 0 else 0.0,
             startup_s=clock["stepping_from"] - clock["started"],
+            paused_s=clock.get("paused_s", 0.0),
             wall_s=clock["ended"] - clock["started"],
             world_cpu_ms_per_step=(clock["cpu_to"] - clock["cpu_from"]) / max(1, steps) * 1e3,
         )

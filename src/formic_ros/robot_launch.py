@@ -26,8 +26,8 @@ class RobotRunOptions:
     cell_size: float = 1.0  # metres a cell (the map frame; origin at 0, 0)
     tolerance: float = 0.1  # metres from a cell's centre that count as in the cell
     cell_s: float = 10.0  # seconds a robot gets per cell before its move counts as failed
-    speed: float = 0.5  # m/s: the bridges' top speed (and the simulated robots')
-    turn: float = 2.5  # rad/s
+    max_speed: float = 0.5  # m/s: the bridges' top speed (and the simulated robots')
+    max_turn: float = 2.5  # rad/s
     stall_rate: float = 0.0  # simulated robots: stalls per second of driving (failed moves on purpose)
     seed: int = 0  # simulated robots' noise and stalls
 
@@ -54,12 +54,12 @@ def check_robots(robots: RobotRunOptions, team: Team) -> None:
 def robot_specs(robots: RobotRunOptions, policy: str, namespace: str, domain_id: int | None,
                 model: str | None, greedy: bool) -> dict[str, dict]:
     """The bridges' process (a driver: it claims the robots' agents) and the simulator's."""
-    limits = UnicycleLimits(max_linear=robots.speed, max_angular=robots.turn, linear_accel=2 * robots.speed,
-                            angular_accel=2 * robots.turn, stall_rate=robots.stall_rate)
+    limits = UnicycleLimits(max_linear=robots.max_speed, max_angular=robots.max_turn, linear_accel=2 * robots.max_speed,
+                            angular_accel=2 * robots.max_turn, stall_rate=robots.stall_rate)
     # the bridges brake at 3/4 of what the (simulated) robots can, and stop on the spot
     bridge = BridgeSettings(controller=ControllerSettings(
-        max_linear=robots.speed, max_angular=robots.turn, linear_decel=1.5 * robots.speed,
-        angular_decel=1.5 * robots.turn, linear_gain=8.0, angular_gain=8.0, pass_radius=robots.cell_size / 4))
+        max_linear=robots.max_speed, max_angular=robots.max_turn, linear_decel=1.5 * robots.max_speed,
+        angular_decel=1.5 * robots.max_turn, linear_gain=8.0, angular_gain=8.0, pass_radius=robots.cell_size / 4))
     ids = [int(a) for a in robots.agents]
     specs = {"robots": node_spec("robots", agent_ids=ids, policy=policy, settings=asdict(bridge), namespace=namespace,
                                  name=BRIDGES, model=model, greedy=greedy, once=True, domain_id=domain_id)}

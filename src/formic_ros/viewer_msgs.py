@@ -12,8 +12,7 @@ from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker, MarkerArray
 
 from formic_world import World
-from formic_world.geometry import CACHE, RESOURCE
-from formic_world.metric_frame import MAP_FRAME, MetricFrame
+from formic_world.metric_frame import MAP_FRAME, MetricFrame, occupancy_values
 
 from .wire import typed
 
@@ -32,12 +31,8 @@ def occupancy_grid(world: World, stamp: Time, frame: MetricFrame) -> OccupancyGr
     origin; data row 0 is the southern row): free cells 0-60 by pheromone, resources 80,
     caches 90, obstacles 100."""
     height, width = world.grid.shape
-    values = np.rint(np.clip(world.visible_pheromone(), 0.0, 1.0) * 60).astype(np.int8)
-    values[world.grid == 1] = 100
-    values[world.grid == RESOURCE] = 80
-    values[world.grid == CACHE] = 90
     origin = Pose(position=Point(x=frame.origin_x, y=frame.origin_y))
-    return OccupancyGrid(header=Header(stamp=stamp, frame_id=MAP_FRAME), data=typed("b", values[::-1], np.int8),
+    return OccupancyGrid(header=Header(stamp=stamp, frame_id=MAP_FRAME), data=typed("b", occupancy_values(world), np.int8),
                          info=MapMetaData(map_load_time=stamp, resolution=frame.cell_size, width=width,
                                           height=height, origin=origin))
 

@@ -269,6 +269,7 @@ class WorldNode(Node):
         self.get_logger().info(f"episode: {cfg.height}x{cfg.width}, {cfg.n_agents} agents, {cfg.episode_steps} "
                                f"steps, seed {self.scenario.seed}, {mode}")
         self._finish = None  # the last step's bookkeeping, done while the agents choose the next actions
+        self._paused_at: float | None = None  # since when a client has held the world between steps
         self._bar = tqdm(total=cfg.episode_steps, disable=not opts.progress, file=sys.stderr, unit="step",
                          leave=False)
 
@@ -278,6 +279,7 @@ class WorldNode(Node):
         Its bookkeeping runs after the next step's observations went out, or at :meth:`settle`."""
         world = self.world
         t = world.t
+        self._count_pause()
         self.inbox.open(t)
         self._publish_observations(self.result)
         self.settle()
@@ -306,11 +308,18 @@ class WorldNode(Node):
             finish, self._finish = self._finish, None
             finish()
 
+    def _count_pause(self) -> None:
+        """The time a client held the world since :meth:`pause` is not stepping (steps_per_s)."""
+        if self._paused_at is not None:
+            self.clock["paused_s"] = self.clock.get("paused_s", 0.0) + time.monotonic() - self._paused_at
+            self._paused_at = None
+
     def pause(self) -> None:
         """Stop between steps: the last step's bookkeeping now, and the next step's actions
         taken as they come (the planner answers ``applied_actions`` before a client asks for
         the step; hosts answer only observations, which the step sends)."""
         self.settle()
+        self._paused_at = time.monotonic()
         if not self.world.done:
             self.inbox.open(self.world.t)
 
@@ -320,6 +329,7 @@ class WorldNode(Node):
         self._publish_observations(self.result)  # done=True: hosts stop answering
         self.settle()
         self._bar.close()
+        self._count_pause()
         self.clock.update(ended=time.monotonic(), cpu_to=time.process_time(), started=self.started)
         if last:
             self._linger(executor)

@@ -13,8 +13,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
-from .geometry import EAST, NORTH, SOUTH, WEST
+import numpy as np
+
+from .geometry import CACHE, EAST, NORTH, OBSTACLE, RESOURCE, SOUTH, WEST
+
+if TYPE_CHECKING:
+    from .world import World
 
 MAP_FRAME = "map"
 
@@ -53,3 +59,14 @@ class MetricFrame:
         """Metres from ``(x, y)`` to the centre of cell ``(row, col)``."""
         cx, cy = self.cell_centre(row, col)
         return math.hypot(cx - x, cy - y)
+
+
+def occupancy_values(world: World) -> np.ndarray:
+    """The world as ``OccupancyGrid`` data (int8, data row 0 the southern row): free cells 0-60
+    by visible pheromone, resources 80, caches 90, obstacles 100. What the world node publishes
+    on ``map`` and what ``formic replay --verify`` expects there."""
+    values = np.rint(np.clip(world.visible_pheromone(), 0.0, 1.0) * 60).astype(np.int8)
+    values[world.grid == OBSTACLE] = 100
+    values[world.grid == RESOURCE] = 80
+    values[world.grid == CACHE] = 90
+    return values[::-1]
