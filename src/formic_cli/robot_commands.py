@@ -51,7 +51,8 @@ def robot_run_options(fields: dict):
     from formic_ros.robot_launch import RobotRunOptions
 
     robots, simulate = fields.pop("robots"), fields.pop("robots_sim")
-    settings = {name: fields.pop(f"robot_{name}") for name in ("tolerance", "cell_s", "max_speed", "max_turn", "stall_rate")}
+    names = ("tolerance", "cell_s", "max_speed", "max_turn", "stall_rate")
+    settings = {name: fields.pop(f"robot_{name}") for name in names}
     cell_size = fields.pop("cell_size")
     if not robots:
         if simulate:

@@ -32,7 +32,8 @@ def occupancy_grid(world: World, stamp: Time, frame: MetricFrame) -> OccupancyGr
     caches 90, obstacles 100."""
     height, width = world.grid.shape
     origin = Pose(position=Point(x=frame.origin_x, y=frame.origin_y))
-    return OccupancyGrid(header=Header(stamp=stamp, frame_id=MAP_FRAME), data=typed("b", occupancy_values(world), np.int8),
+    data = typed("b", occupancy_values(world), np.int8)
+    return OccupancyGrid(header=Header(stamp=stamp, frame_id=MAP_FRAME), data=data,
                          info=MapMetaData(map_load_time=stamp, resolution=frame.cell_size, width=width,
                                           height=height, origin=origin))
 
