@@ -14,7 +14,7 @@ import numpy as np
 
 from formic_agent.policy import CentralPolicy
 from formic_world.geometry import DIRECTION_DELTAS, FREE, JOIN
-from formic_world.kernels import JOIN_OK, find_join, queue_entry_spot
+from formic_world.kernels import JOIN_OK, find_join, queue_entry_spots
 
 UNREACHABLE = np.int32(1 << 28)
 NO_TARGET = -1
@@ -261,7 +261,7 @@ class CentralizedPlanner(CentralPolicy):
         """Cell each queue's agents head for: its entry; one cell further out when the entry is
         still held by the agent just served (waiting beside it would box that agent in), and
         past the queue's end when the queue is full."""
-        spot = queue_entry_spot(world.queue_count, world.queue_head, world.config.queue_len)
+        spot = queue_entry_spots(world.queue_count, world.queue_head, world.config.queue_len)
         full = spot < 0
         cells = world.queue_cells[np.arange(len(spot)), spot].copy()  # full (-1): replaced below
         outward = world.queue_cells[:, 1] - world.queue_cells[:, 0]

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import array
 import json
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 from rclpy.serialization import deserialize_message
@@ -23,8 +23,11 @@ from formic_interfaces.msg import Rollout as RolloutMsg
 from formic_agent.policy import AgentBatch
 from formic_topics import EXTRA_INPUT_COUNT, NO_ACTION_WIRE, SCENARIO_FORMAT_VERSION
 from formic_trainer.rollout import Rollout
-from formic_world import Scenario, World
 from formic_world.geometry import N_ACTIONS
+from formic_world.scenario import Scenario
+
+if TYPE_CHECKING:
+    from formic_world.world import World
 
 from .wire import decode_encoded, decode_observations, f32, i32, observation_fields, read, u8, u32
 

@@ -12,7 +12,7 @@ from typing import Callable
 import numpy as np
 
 import formic_topics as topics
-from formic_world import NO_ACTION
+from formic_world.geometry import NO_ACTION
 
 RESEND_S = 0.5  # step-0 observations are re-sent this often until every agent has answered
 STEP_RESEND_S = 0.25  # later steps: re-sent to the agents that have not answered after this long

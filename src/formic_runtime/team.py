@@ -126,7 +126,10 @@ class Team:
         """Agents of each host: a group whose policy shares one memory across the team stays
         whole in one host; the other agents are dealt in contiguous chunks so hosts end up
         about equally loaded."""
-        buckets: list[list[int]] = [[] for _ in range(max(1, hosts))]
+        if hosts <= 1:  # (without asking the policies: the learned one's class would load torch here)
+            every = sorted(a for _, ids in self.groups for a in ids)
+            return [every] if every else []
+        buckets: list[list[int]] = [[] for _ in range(hosts)]
         splittable: list[int] = []
         for name, ids in self.groups:
             if policy_class(name).shares_team_memory:

@@ -7,6 +7,7 @@ import numpy as np
 # Actions 0-3 are moves in these directions; 4 is JOIN (SPEC §4). Row index grows southwards.
 NORTH, EAST, SOUTH, WEST, JOIN = 0, 1, 2, 3, 4
 N_ACTIONS = 5
+NO_ACTION = -1  # an agent whose action is missing (a late or dead agent node) does nothing
 DIRECTION_DELTAS = np.array([[-1, 0], [0, 1], [1, 0], [0, -1]], dtype=np.int64)
 
 # Cell kinds of the static grid. Resource and cache cells are impassable.

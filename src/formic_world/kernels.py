@@ -9,6 +9,7 @@ every rule's meaning is documented in ``world.py``.
 from __future__ import annotations
 
 import numba as nb
+import numpy as np
 
 from .geometry import DIRECTION_DELTAS
 
@@ -19,14 +20,24 @@ _DC = DIRECTION_DELTAS[:, 1].copy()
 JOIN_NONE, JOIN_WRONG, JOIN_OK = 0, 1, 2
 
 
-@nb.vectorize(["int64(int64, int64, int64)"], cache=True)
+@nb.njit(cache=True)
 def queue_entry_spot(members_count, head, queue_len):
-    """First spot behind the last queued agent, or -1 when the queue is full (a ufunc: the
-    kernels call it per queue, the observation and the planner on arrays of queues)."""
+    """First spot behind the last queued agent, or -1 when the queue is full."""
     if members_count == 0:
         return 0
     spot = head + members_count
     return spot if spot < queue_len else -1
+
+
+@nb.njit(cache=True)
+def queue_entry_spots(queue_count, queue_head, queue_len):
+    """:func:`queue_entry_spot` of every queue (the observation and the planner read them all).
+    Not a numba ufunc: an eagerly typed one compiles at every import (0.5 s), an njit function
+    loads from the cache."""
+    spots = np.empty(len(queue_count), dtype=np.int64)
+    for q in range(len(queue_count)):
+        spots[q] = queue_entry_spot(queue_count[q], queue_head[q], queue_len)
+    return spots
 
 
 @nb.njit(cache=True)

@@ -13,7 +13,7 @@ import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
 from .geometry import DIRECTION_DELTAS, FREE
-from .kernels import queue_entry_spot
+from .kernels import queue_entry_spots
 
 if TYPE_CHECKING:
     from .world import World
@@ -85,7 +85,7 @@ class ObservationBuilder:
         w = self.world
         qlen = w.config.queue_len
         count, head = w.queue_count, w.queue_head
-        spot = queue_entry_spot(count, head, qlen)
+        spot = queue_entry_spots(count, head, qlen)
         # Queues 0-3 (the caches) read -1, infinite; queue 4+i reads resource i (there may be none).
         remaining = np.concatenate([[-1] * 4, w.resource_remaining])
         capacity = np.concatenate([[-1] * 4, w.resource_capacity])

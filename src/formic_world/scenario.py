@@ -15,7 +15,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy import ndimage
 
 from .config import WorldConfig, resource_count_range
 from .errors import InputError
@@ -195,6 +194,8 @@ def find_resource_strip(
 
 def passable_component_reaches(passable: np.ndarray, source: tuple[int, int], targets: np.ndarray) -> bool:
     """True if every target cell is connected to ``source`` through passable cells (4-connected)."""
+    from scipy import ndimage  # here: processes that only read scenarios (agent hosts) skip scipy's start-up
+
     labels, _ = ndimage.label(passable)
     source_label = labels[source]
     return source_label != 0 and bool((labels[targets[:, 0], targets[:, 1]] == source_label).all())

@@ -27,7 +27,7 @@ import numpy as np
 
 from . import kernels
 from .config import WorldConfig
-from .geometry import DIRECTION_DELTAS, FREE, N_ACTIONS, RESOURCE, nest_centre, queue_cells
+from .geometry import DIRECTION_DELTAS, FREE, N_ACTIONS, NO_ACTION, RESOURCE, nest_centre, queue_cells
 from .observation import ObservationBuilder
 from .pheromones import deposit_values, highway_map
 from .scenario import (
@@ -43,7 +43,6 @@ from .scenario import (
 )
 
 _RESPAWN_TRIES = 1000
-NO_ACTION = -1  # an agent whose action is missing (a late or dead agent node) does nothing
 # what World.step changes (World.snapshot/restore): every array it writes, in place or anew
 _STEPPED_ARRAYS = ("grid", "pheromone", "agent_at", "pos", "load", "queue_of", "spot_of", "intensity", "last_move",
                    "queue_cells", "queue_members", "queue_count", "queue_head", "resource_pos", "resource_dir",
