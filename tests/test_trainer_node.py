@@ -222,12 +222,12 @@ def test_trainer_and_host_name_the_peer_they_wait_for(tmp_path, monkeypatch):
     executor = SingleThreadedExecutor()
     try:
         host = LearningHost([0, 1, 2, 3], CFG, name="agent_host_9")
-        executor.add_node(host.control)
+        executor.add_node(host)
         assert "no trainer publishes on /formic/weights" in host.weights_wait_report()
         node = TrainerNode(Learner(CFG, tmp_path / "run", resume=False, log=quiet))
         executor.add_node(node)
         deadline = time.monotonic() + 20
-        while time.monotonic() < deadline and not (publishers_of(host.control, "/formic/weights")
+        while time.monotonic() < deadline and not (publishers_of(host, "/formic/weights")
                                                    and publishers_of(node, "/formic/rollouts")):
             executor.spin_once(timeout_sec=0.1)
         host.newest = None  # as if the weights were lost on the way

@@ -23,7 +23,6 @@ import time
 from contextlib import suppress
 
 import numpy as np
-import rclpy
 from formic_interfaces.msg import (ActionBatch, AgentAction, AgentObservation, ObservationBatch,
                                    ScenarioDescription)
 from rclpy.node import Node
@@ -65,8 +64,10 @@ def lean_node(name: str, namespace: str) -> Node:
     )
 
 
-class AgentHost:
-    """The nodes and policies of one host; add :attr:`nodes` to an executor and spin."""
+class AgentHost(Node):
+    """One host's control node (its settings, the scenario, the batched transport) with the
+    policies of its agents; per agent a lean node of its own on the per-agent transport. Add
+    :attr:`nodes` (itself first) to an executor and spin."""
 
     def __init__(self, agent_ids: list[int], spec: str, model: str | None = None, greedy: bool = False,
                  transport: str = "per-agent", namespace: str = topics.DEFAULT_NAMESPACE,
@@ -81,15 +82,15 @@ class AgentHost:
             if isinstance(policy, CentralPolicy):
                 raise ValueError(f"{policy.name} needs the full world: it runs as its own node")
         self.transport = transport
-        self.control = rclpy.create_node(name or f"agent_host_{os.getpid()}", namespace=namespace)
-        declare_settings(self.control, {"agent_ids": self.ids.tolist(), "policy": spec, "model": model,
+        super().__init__(name or f"agent_host_{os.getpid()}", namespace=namespace)
+        declare_settings(self, {"agent_ids": self.ids.tolist(), "policy": spec, "model": model,
                                         "greedy": greedy, "transport": transport, "torch_threads": torch_threads})
-        self.log = self.control.get_logger()
-        self.nodes = [self.control]
-        self.control.create_subscription(ScenarioDescription, topics.SCENARIO, self._on_scenario, qos.LATCHED)
+        self.log = self.get_logger()
+        self.nodes = [self]
+        self.create_subscription(ScenarioDescription, topics.SCENARIO, self._on_scenario, qos.LATCHED)
         if transport == "batched":
-            self.control.create_subscription(ObservationBatch, topics.OBSERVATIONS, self._on_batch, qos.STREAM)
-            self.actions_pub = self.control.create_publisher(ActionBatch, f"~/{topics.ACTIONS}", qos.STREAM_WRITER)
+            self.create_subscription(ObservationBatch, topics.OBSERVATIONS, self._on_batch, qos.STREAM)
+            self.actions_pub = self.create_publisher(ActionBatch, f"~/{topics.ACTIONS}", qos.STREAM_WRITER)
             batched, publishers = self.actions_pub.topic_name, [self.actions_pub]
         else:
             self.action_pubs = {}
@@ -99,9 +100,9 @@ class AgentHost:
                                          lambda msg, a=a: self._on_agent_observation(a, msg), qos.LATEST)
                 self.action_pubs[a] = node.create_publisher(AgentAction, f"~/{topics.AGENT_ACTION}", qos.STREAM_WRITER)
                 self.nodes.append(node)
-            self.control.create_timer(PARTIAL_WAIT_S / 4, self._answer_late_step)
+            self.create_timer(PARTIAL_WAIT_S / 4, self._answer_late_step)
             batched, publishers = None, list(self.action_pubs.values())
-        self.claim = Claim(self.control, self.ids.tolist(), batched, publishers=publishers)  # the world checks it
+        self.claim = Claim(self, self.ids.tolist(), batched, publishers=publishers)  # the world checks it
         self.scenario: Scenario | None = None
         self.scenario_json = ""
         self.horizon = -1  # its episode's steps (-1: no scenario yet)
@@ -255,7 +256,7 @@ def serve_agents(agent_ids: list[int], spec: str, once: bool = False, domain_id:
         host = AgentHost(agent_ids, spec, **settings)
         for node in host.nodes:
             executor.add_node(node)
-        watch = WorldWatch(host.control)
+        watch = WorldWatch(host)
         with suppress(KeyboardInterrupt):
             while not (once and host.finished):
                 executor.spin_once(timeout_sec=0.2)

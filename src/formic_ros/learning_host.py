@@ -14,9 +14,9 @@ import time
 from contextlib import suppress
 
 import numpy as np
-import rclpy
 import torch
 from rclpy.duration import Duration
+from rclpy.node import Node
 from formic_interfaces.msg import ActionBatch, ObservationBatch, ScenarioDescription, Weights
 from formic_interfaces.msg import Rollout as RolloutMsg
 
@@ -116,7 +116,7 @@ SWITCH_MODES = ("chunk", "episode")
 WEIGHTS_WAIT_LOG_S = 10.0  # while a host waits for weights, it says so this often
 
 
-class LearningHost:
+class LearningHost(Node):
     """A batched-transport host whose agents learn (distributed training).
 
     The agents act as the in-process trainer's do (:class:`HostActor`: its actor, LSTM
@@ -142,21 +142,19 @@ class LearningHost:
             raise ValueError(f"unknown weights switch {switch!r}; choose from {', '.join(SWITCH_MODES)}")
         torch.set_num_threads(torch_threads)
         self.switch = switch
-        self.control = rclpy.create_node(name or f"agent_host_{os.getpid()}", namespace=namespace)
-        declare_settings(self.control, {"agent_ids": [int(a) for a in agent_ids], "switch": switch,
+        super().__init__(name or f"agent_host_{os.getpid()}", namespace=namespace)
+        declare_settings(self, {"agent_ids": [int(a) for a in agent_ids], "switch": switch,
                                         "first_episode": first_episode, "torch_threads": torch_threads,
                                         "train_config": cfg})
-        self.nodes = [self.control]
-        self.log = self.control.get_logger()
+        self.log = self.get_logger()
         self.actor = HostActor(cfg, agent_ids, first_episode=first_episode)
         self.ids = self.actor.ids
-        node = self.control
-        node.create_subscription(ScenarioDescription, topics.SCENARIO, self._on_scenario, qos.LATCHED)
-        node.create_subscription(ObservationBatch, topics.OBSERVATIONS, self._on_batch, qos.STREAM)
-        self.weights_sub = node.create_subscription(Weights, topics.WEIGHTS, self._on_weights, qos.LATCHED)
-        self.actions_pub = node.create_publisher(ActionBatch, f"~/{topics.ACTIONS}", qos.STREAM_WRITER)
-        self.claim = Claim(node, list(self.ids), self.actions_pub.topic_name, publishers=[self.actions_pub])
-        self.rollouts_pub = node.create_publisher(RolloutMsg, topics.ROLLOUTS, qos.ROLLOUT)
+        self.create_subscription(ScenarioDescription, topics.SCENARIO, self._on_scenario, qos.LATCHED)
+        self.create_subscription(ObservationBatch, topics.OBSERVATIONS, self._on_batch, qos.STREAM)
+        self.weights_sub = self.create_subscription(Weights, topics.WEIGHTS, self._on_weights, qos.LATCHED)
+        self.actions_pub = self.create_publisher(ActionBatch, f"~/{topics.ACTIONS}", qos.STREAM_WRITER)
+        self.claim = Claim(self, list(self.ids), self.actions_pub.topic_name, publishers=[self.actions_pub])
+        self.rollouts_pub = self.create_publisher(RolloutMsg, topics.ROLLOUTS, qos.ROLLOUT)
         self.played = ""  # scenario of the episode being (or last) played
         self.next_scenario = ""  # a scenario not played yet
         self.scenario_json = ""  # the newest scenario seen
@@ -273,7 +271,7 @@ class LearningHost:
         received and the update or its weights are late)."""
         waited = (f"waited {time.monotonic() - self.waiting_since:.0f} s for weights newer than version "
                   f"{self.wait_version}")
-        trainers = publishers_of(self.control, self.weights_sub.topic_name)
+        trainers = publishers_of(self, self.weights_sub.topic_name)
         if not trainers:
             return (f"{waited}: no trainer publishes on {self.weights_sub.topic_name} (is `formic trainer` running, on "
                     "this domain and namespace, and reachable: FORMIC_DDS_NETWORK, ROS_STATIC_PEERS?)")
@@ -310,9 +308,8 @@ def serve_learning_agents(agent_ids: list[int], cfg: TrainConfig, switch: str = 
     with ros_session(domain_id) as executor:
         host = LearningHost(agent_ids, cfg, switch=switch, first_episode=first_episode, namespace=namespace,
                             name=name, torch_threads=torch_threads)
-        for node in host.nodes:
-            executor.add_node(node)
-        watch = WorldWatch(host.control)
+        executor.add_node(host)
+        watch = WorldWatch(host)
         with suppress(KeyboardInterrupt):
             while not (episodes is not None and host.episodes >= episodes):
                 executor.spin_once(timeout_sec=0.2)

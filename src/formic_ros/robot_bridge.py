@@ -205,7 +205,7 @@ def serve_robots(agent_ids: list[int], policy: str = "formic", settings: BridgeS
         bridges = [RobotBridge(a, settings, namespace) for a in agent_ids]
         for bridge in bridges:
             executor.add_node(bridge.node)
-        watch = WorldWatch(host.control) if host is not None else None
+        watch = WorldWatch(host) if host is not None else None
         with suppress(KeyboardInterrupt):
             while not (once and host is not None and host.finished):
                 executor.spin_once(timeout_sec=0.1)
