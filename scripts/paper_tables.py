@@ -1,0 +1,73 @@
+#!/usr/bin/env python3
+"""The paper's Tables I-III rebuilt from evaluation folders, beside the paper's (markdown).
+
+    .venv/bin/python scripts/paper_tables.py eval/tables [--seeds eval/recipe-paper/seed1 eval/recipe-paper/seed2]
+
+ROOT holds one folder per row, named by its recipe switch (``ROOT/no-curriculum``, ...), and
+``ROOT/reference``: the unchanged recipe at the same budget. Each holds ``formic eval`` of that
+run's ``model.pt`` on the tables' 16 cells (docs/training.md has the commands; the reference
+also with the channel empty, and the blind ``no-pheromones`` run only so, as the paper tested
+them). ``formic_eval.tables`` says how a row's relative performance is computed.
+``--seeds``: the unchanged recipe's seeds (full budget), whose spread is printed as the noise
+scale of one seed. A row not evaluated yet says so.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "src"))
+
+from formic_eval.paper import PAPER_TEAMS  # noqa: E402
+from formic_eval.tables import REFERENCE, ROWS, relative_performance, seed_noise  # noqa: E402
+
+TITLES = {"I": "Table I: ablations", "II": "Table II: learning and non-learning agents in teams of 32",
+          "III": "Table III: field of view"}
+
+
+def percent(mean: float, std: float) -> str:
+    return f"{mean:.1f}% ± {std:.1f}%"
+
+
+def tables(root: Path, seeds: list[Path]) -> list[str]:
+    lines = [f"Relative to `{root / REFERENCE}` on the same scenarios: per cell (infinite resources with and "
+             "without 3 wipeouts, 0% and 5% obstacles, 16/32/64/128 agents; 128x128, 1024 steps) the row's food "
+             "over the reference's, then the mean ± sample std over the cells, as the paper computed Table I."]
+    noise = seed_noise(seeds)
+    if noise is not None:
+        lines.append(f"Noise scale of one seed (the unchanged recipe's {len(seeds)} seeds, each over their mean, "
+                     f"{noise.cells} seed-cells): ± {noise.std:.1f}%.")
+    for table, title in TITLES.items():
+        lines += ["", f"### {title}", "",
+                  "| row | ours | paper | " + " | ".join(f"{n} agents" for n in PAPER_TEAMS) + " | cells |",
+                  "|---|---|---|" + "---|" * (len(PAPER_TEAMS) + 1)]
+        for row in (r for r in ROWS if r.table == table):
+            found = relative_performance(root, row)
+            paper = f"{row.paper[0]:.2f}% ± {row.paper[1]:.2f}%"  # as published
+            if found is None:
+                folder = root / row.switch
+                lines.append(f"| {row.label} | not evaluated yet ({folder}) | {paper} | "
+                             + " | ".join("–" for _ in PAPER_TEAMS) + " | 0 |")
+                continue
+            teams = " | ".join(f"{found.by_team[n]:.0f}%" if n in found.by_team else "–" for n in PAPER_TEAMS)
+            lines.append(f"| {row.label} | {percent(found.mean, found.std)} | {paper} | {teams} | {found.cells} |")
+    return lines
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("root", type=Path, help="the folder of the rows' evaluation folders")
+    parser.add_argument("--seeds", nargs="*", type=Path, default=[],
+                        help="eval folders of the unchanged recipe's seeds (the noise scale)")
+    args = parser.parse_args()
+    try:
+        print("\n".join(tables(args.root, args.seeds)))
+    except ValueError as exc:
+        sys.exit(f"paper_tables: {exc}")
+
+
+if __name__ == "__main__":
+    main()

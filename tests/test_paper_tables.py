@@ -1,0 +1,102 @@
+"""The paper's Tables I-III from evaluation folders (issue 26): relative performance per cell."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from formic_eval.tables import ROWS, Relative, cell_ratios, model_episodes
+
+ROOT = Path(__file__).resolve().parents[1]
+CELLS = [(env, obstacles, n) for env in ("infinite", "wipeout") for obstacles in (0.0, 0.05) for n in (16, 32, 64, 128)]
+
+
+def episodes(food, variant: str = "", model: str = "m", scenarios=("a", "b")) -> list[dict]:
+    """Two scenarios per cell of the tables' 16; ``food(env, obstacles, agents)`` gives the food."""
+    out = []
+    for env, obstacles, n in CELLS:
+        for digest in scenarios:
+            out.append({"key": f"{variant}|{env}|{obstacles}|{n}|{digest}", "algorithm": "formic", "variant": variant,
+                        "model": model, "size": 128, "steps": 1024, "agents": n, "obstacles": obstacles, "env": env,
+                        "seed": 7, "scenario": digest, "scenario_digest": f"{env}{obstacles}{n}{digest}",
+                        "food": food(env, obstacles, n)})
+    return out
+
+
+def write(folder: Path, *groups: list[dict]) -> None:
+    folder.mkdir(parents=True, exist_ok=True)
+    with open(folder / "episodes.jsonl", "a") as log:
+        for records in groups:
+            log.writelines(json.dumps(r) + "\n" for r in records)
+
+
+def run_tables(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, str(ROOT / "scripts" / "paper_tables.py"), *args],
+                          capture_output=True, text=True, timeout=60)
+
+
+def test_every_row_of_the_three_tables_is_a_recipe_switch():
+    from formic_trainer.recipe import load_recipe
+
+    switches = set(load_recipe("paper").switches)
+    assert {row.switch for row in ROWS} - {"reference"} <= switches
+    assert [row.table for row in ROWS].count("I") == 5 and len(ROWS) == 10
+
+
+def test_relative_performance_is_per_cell_on_shared_scenarios_then_mean_and_std_over_cells(tmp_path):
+    reference = episodes(lambda env, o, n: 100.0)
+    row = episodes(lambda env, o, n: 80.0 if env == "infinite" else 60.0)
+    ratios = cell_ratios(row, reference)
+    assert len(ratios) == 16 and ratios[("infinite", 0.05, 32)] == 0.8 and ratios[("wipeout", 0.0, 16)] == 0.6
+    found = Relative.of(ratios)
+    assert (found.mean, found.cells) == (pytest.approx(70.0), 16)
+    assert found.std == pytest.approx((1600 / 15) ** 0.5)  # sample std of eight 80s and eight 60s
+    assert found.by_team == {n: pytest.approx(70.0) for n in (16, 32, 64, 128)}
+    # a scenario only one side played is left out of its cell
+    extra = episodes(lambda env, o, n: 0.0, scenarios=("c",))
+    assert cell_ratios(row + extra, reference) == ratios
+
+
+def test_the_script_prints_each_table_beside_the_paper_and_names_rows_not_yet_evaluated(tmp_path):
+    root = tmp_path / "tables"
+    write(root / "reference", episodes(lambda env, o, n: 100.0),
+          episodes(lambda env, o, n: 50.0, variant="no-pheromones"))  # the same model, the channel empty
+    write(root / "no-curriculum", episodes(lambda env, o, n: 80.0 if env == "infinite" else 60.0, model="nc"))
+    outside = [dict(r, env="finite", key=r["key"] + "f") for r in episodes(lambda env, o, n: 1.0, model="nc")]
+    write(root / "no-curriculum", outside)  # finite resources: not one of the tables' cells
+    write(root / "fov5", episodes(lambda env, o, n: float(n), model="f5"))  # 16%..128% by team size: std 44.3
+    seeds = [tmp_path / "seed1", tmp_path / "seed2"]
+    write(seeds[0], episodes(lambda env, o, n: 90.0, model="s1"))
+    write(seeds[1], episodes(lambda env, o, n: 110.0, model="s2"))
+    done = run_tables(str(root), "--seeds", *map(str, seeds))
+    assert done.returncode == 0, done.stderr
+    lines = done.stdout.splitlines()
+    assert "| Training without pheromone curriculum | 70.0% ± 10.3% | 75.89% ± 7.00% | 70% | 70% | 70% | 70% | 16 |" \
+        in lines
+    empty = ("| Testing without pheromones (empty channel) | 50.0% ± 0.0% | 65.89% ± 8.73% "
+             "| 50% | 50% | 50% | 50% | 16 |")
+    assert empty in lines
+    assert "| FOV 5 | 60.0% ± 44.3% | 59.61% ± 11.00% | 16% | 32% | 64% | 128% | 16 |" in lines, done.stdout
+    missing = next(line for line in lines if line.startswith("| Training without invalid action pruning |"))
+    assert f"not evaluated yet ({root / 'no-pruning'})" in missing and missing.endswith("| 0 |")
+    assert "Noise scale of one seed (the unchanged recipe's 2 seeds, each over their mean, 32 seed-cells): ± 10.2%." \
+        in lines
+    assert [line for line in lines if line.startswith("### ")] == [
+        "### Table I: ablations", "### Table II: learning and non-learning agents in teams of 32",
+        "### Table III: field of view"]
+
+
+def test_a_folder_with_two_models_in_one_row_is_refused(tmp_path):
+    root = tmp_path / "tables"
+    write(root / "reference", episodes(lambda env, o, n: 100.0))
+    write(root / "fov21", episodes(lambda env, o, n: 100.0, model="one"),
+          [dict(r, key=r["key"] + "x", scenario_digest=r["scenario_digest"] + "x")
+           for r in episodes(lambda env, o, n: 100.0, model="two")])
+    with pytest.raises(ValueError, match="several models"):
+        model_episodes(root / "fov21", "")
+    done = run_tables(str(root))
+    assert done.returncode == 1 and "several models (one, two)" in done.stderr
