@@ -20,6 +20,7 @@ import numpy as np
 from .paired import pair_records
 from .paper import PAPER_SIZE, PAPER_STEPS, PAPER_TEAMS
 from .runner import EpisodeLog
+from .seeds import mean_over_seeds
 
 REFERENCE = "reference"
 CELL_ENVS = ("infinite", "wipeout")
@@ -116,8 +117,6 @@ def seed_noise(seed_folders: Sequence[Path]) -> Relative | None:
     per_seed = [records for records in per_seed if records]
     if len(per_seed) < 2:
         return None
-    from .seeds import mean_over_seeds
-
     pooled = mean_over_seeds({str(i): records for i, records in enumerate(per_seed)})
     ratios: dict[tuple, float] = {}
     for i, records in enumerate(per_seed):
