@@ -646,3 +646,30 @@ def test_an_interrupted_run_closes_its_recording_and_it_verifies(tmp_path, signa
     assert (out / "metadata.yaml").is_file() and Recording(out).complete, run.output()[-3000:]
     done = formic("replay", str(out), "--verify")
     assert done.returncode == 0 and "(interrupted)" in done.stdout, done.stdout + done.stderr
+
+
+def test_a_stopped_recorder_records_what_already_arrived_before_it_closes(tmp_path):
+    """Stopped at once (``duration_s=0``: its loop never spins), the recorder still takes the
+    messages that reached it before the stop: a launcher stops it right after the world leaves,
+    when a busy machine may not have let it read the last steps yet."""
+    from ros_helpers import fresh_domain_id
+    from std_msgs.msg import String
+
+    import formic_topics as topics
+    from formic_ros.qos import reliable
+    from formic_ros.recorder import RecorderOptions, record
+
+    sent, name = 50, topics.full_name(topics.DEFAULT_NAMESPACE, topics.SUMMARY)
+
+    def publish_burst(node) -> None:
+        publisher = node.create_publisher(String, name, reliable(sent, latched=True))
+        deadline = time.monotonic() + 20
+        while publisher.get_subscription_count() == 0 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        for i in range(sent):
+            publisher.publish(String(data=str(i)))
+
+    result = record(tmp_path / "rec", RecorderOptions(), domain_id=fresh_domain_id(), duration_s=0.0,
+                    on_ready=publish_burst)
+    assert result["topics"].get(name) == sent, result
+    assert Recording(tmp_path / "rec").topics[name].count == sent

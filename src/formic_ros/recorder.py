@@ -41,6 +41,7 @@ from .parameters import declare_settings, settings_of
 DISCOVERY_PERIOD_S = 0.2
 REPORT_PERIOD_S = 0.02  # a changed match count is reported within this long
 STREAM_DEPTH = 100  # the depth recorded for (and replayed with) stream topics
+DRAIN_QUIET_S, DRAIN_LIMIT_S = 0.25, 3.0  # after a stop: until no message for the first, at most the second
 
 
 def message_class(msgtype: str):
@@ -219,6 +220,19 @@ class Recorder(Node):
         })
 
 
+def drain(executor, node: Recorder, quiet_s: float = DRAIN_QUIET_S, limit_s: float = DRAIN_LIMIT_S) -> None:
+    """Take what already arrived before the bag closes: spin until no message came for
+    ``quiet_s`` (at most ``limit_s``). A recorder stopped right after the run (a launcher stops
+    it once the world has left) may still hold the last steps' messages unread, most often on a
+    busy machine."""
+    started = quiet_from = time.monotonic()
+    seen = sum(node.counts.values())
+    while (now := time.monotonic()) - quiet_from < quiet_s and now - started < limit_s:
+        executor.spin_once(timeout_sec=0.05)
+        if (count := sum(node.counts.values())) != seen:
+            seen, quiet_from = count, time.monotonic()
+
+
 def record(out: str | Path, options: RecorderOptions, domain_id: int | None = None,
            duration_s: float | None = None, on_ready=None) -> dict:
     """Record until SIGINT/SIGTERM/SIGHUP (or ``duration_s``); returns counts per topic. The
@@ -241,6 +255,7 @@ def record(out: str | Path, options: RecorderOptions, domain_id: int | None = No
                 while not stop and (deadline is None or time.monotonic() < deadline):
                     executor.spin_once(timeout_sec=0.1)
                     writer.flush_if_due()
+                drain(executor, node)
                 counts, skipped = dict(node.counts), dict(node.skipped)
         finally:
             writer.close()
