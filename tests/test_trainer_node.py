@@ -37,6 +37,7 @@ from formic_trainer.config import make_config  # noqa: E402
 from formic_trainer.learner import Learner  # noqa: E402
 from formic_trainer.rollout import Rollout  # noqa: E402
 from formic_trainer.worlds import MetaAgents  # noqa: E402
+from ros_helpers import fresh_domain_id  # noqa: E402
 
 pytestmark = pytest.mark.filterwarnings("ignore::UserWarning", "ignore:module 'sre_:DeprecationWarning")
 
@@ -174,6 +175,7 @@ def test_trainer_node_broadcasts_the_in_process_update(experience, monkeypatch):
             rollouts.publish(encode_rollout(rollout))
             wait_for(lambda v=version: v in received, 30)
         out, err = node_proc.communicate(timeout=30)
+        node.destroy_node()
     finally:
         rclpy.shutdown(context=context)
         if node_proc.poll() is None:
@@ -218,7 +220,9 @@ def test_trainer_and_host_name_the_peer_they_wait_for(tmp_path, monkeypatch):
     from formic_ros.graph import publishers_of
     from formic_ros.learning_host import LearningHost
 
-    rclpy.init(domain_id=DOMAIN_ID)
+    # A domain of its own: the graph must hold exactly this test's nodes, and a participant of an
+    # earlier test in this process (the "/formic/host" above) can outlive its context for a while.
+    rclpy.init(domain_id=fresh_domain_id())
     executor = SingleThreadedExecutor()
     try:
         host = LearningHost([0, 1, 2, 3], CFG, name="agent_host_9")
