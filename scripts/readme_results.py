@@ -23,35 +23,16 @@ sys.path.insert(0, str(ROOT / "src"))
 
 from formic_eval.matrix import file_digest  # noqa: E402
 from formic_eval.paired import PairedDifference, compare, layout_key  # noqa: E402
-from formic_eval.paper import PAPER_TEAMS, algorithm_label, paper_food  # noqa: E402
+from formic_eval.paper import (FIG5_SETTINGS, PAPER_SIZE, PAPER_STEPS, PAPER_TEAMS, RIVALS,  # noqa: E402
+                               algorithm_label, paper_food, setting_title, test_set_episodes)
 from formic_eval.plots import plot_food_vs_team  # noqa: E402
 from formic_eval.results import aggregate  # noqa: E402
-from formic_eval.runner import EpisodeLog  # noqa: E402
+from formic_eval.runner import folder_episodes  # noqa: E402
 
 BEGIN, END = "<!-- results:begin (scripts/readme_results.py) -->", "<!-- results:end -->"
-SIZE, STEPS = 128, 1024
 # rows of the main table, in order: (algorithm, variant)
 ROWS = [("formic", ""), ("formic", "no-pheromones"), ("planner", ""), ("csaf11", ""), ("csaf", ""),
         ("cardinality", ""), ("csaf11-ref", ""), ("csaf-ref", ""), ("random", "")]
-SETTINGS = [(env, obstacles) for obstacles in (0.0, 0.05) for env in ("infinite", "finite", "wipeout")]
-BASELINES = [("csaf11", "C-SAF-11"), ("cardinality", "Cardinality-MR")]
-
-
-def load(folder: Path) -> list[dict]:
-    return list(EpisodeLog(Path(folder) / "episodes.jsonl").load().values())
-
-
-def select(records: list[dict], algorithm: str, variant: str = "", **setting) -> list[dict]:
-    return [r for r in records if r["algorithm"] == algorithm and r["variant"] == variant
-            and r["size"] == SIZE and r["steps"] == STEPS and all(r[k] == v for k, v in setting.items())]
-
-
-def signed(value: float) -> str:
-    return f"{value:+.0f}"
-
-
-def difference(d: PairedDifference) -> str:
-    return f"{signed(d.mean)} [{signed(d.low)}, {signed(d.high)}] (n={d.n})"
 
 
 def percent_less(d: PairedDifference) -> str:
@@ -60,16 +41,11 @@ def percent_less(d: PairedDifference) -> str:
     return f"{-mean:.0f}% [{-high:.0f}, {-low:.0f}] (n={d.n})"
 
 
-def setting_title(env: str, obstacles: float) -> str:
-    what = {"infinite": "infinite", "finite": "finite", "wipeout": "infinite, 3 wipeouts"}[env]
-    return f"{what}, {obstacles * 100:g}% obstacles"
-
-
 def main_table(cells: list[dict]) -> list[str]:
     by_key = {(c["algorithm"], c["variant"], c["env"], c["obstacles"], c["agents"]): c for c in cells}
     lines = ["| setting | algorithm | " + " | ".join(f"{n} agents" for n in PAPER_TEAMS) + " |",
              "|---|---|" + "---|" * len(PAPER_TEAMS)]
-    for env, obstacles in SETTINGS:
+    for env, obstacles in FIG5_SETTINGS:
         first = True
         for algorithm, variant in ROWS:
             row = [by_key.get((algorithm, variant, env, obstacles, n)) for n in PAPER_TEAMS]
@@ -101,18 +77,18 @@ def paired_table(model: list[dict], baselines: list[dict]) -> list[str]:
     header = ["| setting | comparison | " + " | ".join(f"{n} agents" for n in PAPER_TEAMS) + " |",
               "|---|---|" + "---|" * len(PAPER_TEAMS)]
     lines = []
-    for env, obstacles in SETTINGS:
-        ours = select(model, "formic", env=env, obstacles=obstacles)
+    for env, obstacles in FIG5_SETTINGS:
+        ours = test_set_episodes(model, "formic", env=env, obstacles=obstacles)
         if not ours:
             continue
         rows: list[tuple[str, dict]] = []
-        for name, title in BASELINES:
-            found = compare(ours, select(baselines, name, env=env, obstacles=obstacles))
-            rows.append((f"ForMIC − {title} (food)", {k[1]: difference(d) for k, d in found.items()}))
-        empty = compare(select(model, "formic", "no-pheromones", env=env, obstacles=obstacles), ours)
+        for name, title in RIVALS:
+            found = compare(ours, test_set_episodes(baselines, name, env=env, obstacles=obstacles))
+            rows.append((f"ForMIC − {title} (food)", {k[1]: d.food_text() for k, d in found.items()}))
+        empty = compare(test_set_episodes(model, "formic", "no-pheromones", env=env, obstacles=obstacles), ours)
         rows.append(("pheromone channel empty: less food", {k[1]: percent_less(d) for k, d in empty.items()}))
         if env == "wipeout":
-            plain = select(model, "formic", env="infinite", obstacles=obstacles)
+            plain = test_set_episodes(model, "formic", env="infinite", obstacles=obstacles)
             cost = compare(ours, plain, key=layout_key)
             rows.append(("3 wipeouts: less food than the same layouts without",
                          {k[1]: percent_less(d) for k, d in cost.items()}))
@@ -127,7 +103,7 @@ def paired_table(model: list[dict], baselines: list[dict]) -> list[str]:
 def paper_ratio_line(cells: list[dict]) -> list[str]:
     """ForMIC's food over the paper's ForMIC per cell (the paper gives no spread: a plain ratio)."""
     lines = []
-    for env, obstacles in SETTINGS:
+    for env, obstacles in FIG5_SETTINGS:
         ratios = []
         for n in PAPER_TEAMS:
             cell = next((c for c in cells if (c["algorithm"], c["variant"], c["env"], c["obstacles"], c["agents"])
@@ -144,13 +120,13 @@ def paper_ratio_line(cells: list[dict]) -> list[str]:
 
 def block(model_eval: Path, baselines_eval: Path, model_file: Path, figure: Path, draw: bool) -> str:
     """The results block; ``draw``: (re)draw its figure too."""
-    model = [r for r in load(model_eval) if r["algorithm"] == "formic"]
-    baselines = [r for r in load(baselines_eval) if r["algorithm"] != "formic"]
+    model = [r for r in folder_episodes(model_eval) if r["algorithm"] == "formic"]
+    baselines = [r for r in folder_episodes(baselines_eval) if r["algorithm"] != "formic"]
     digests = sorted({r["model"] for r in model})
     if digests != [file_digest(model_file)]:
         raise SystemExit(f"{model_eval} holds episodes of model(s) {digests}, not of {model_file} "
                          f"({file_digest(model_file)}): evaluate the shipped model there first")
-    cells = aggregate([r for r in model + baselines if r["size"] == SIZE and r["steps"] == STEPS])
+    cells = aggregate([r for r in model + baselines if r["size"] == PAPER_SIZE and r["steps"] == PAPER_STEPS])
     if draw:
         plot_food_vs_team([c for c in cells if c["variant"] == ""], figure)
     rel = lambda p: Path(p).resolve().relative_to(ROOT).as_posix()  # noqa: E731
@@ -158,7 +134,8 @@ def block(model_eval: Path, baselines_eval: Path, model_file: Path, figure: Path
         BEGIN,
         f"ForMIC here is `{rel(model_file)}` (digest `{digests[0]}`), its episodes in `{rel(model_eval)}/`; "
         f"every other algorithm's in `{rel(baselines_eval)}/`, on the same stored scenarios. Food deposited in "
-        f"{STEPS} steps on {SIZE}x{SIZE} worlds, mean ± std over the n scenarios; (the paper's value); "
+        f"{PAPER_STEPS} steps on {PAPER_SIZE}x{PAPER_SIZE} worlds, mean ± std over the n scenarios; "
+        "(the paper's value); "
         "[food ÷ the centralized planner's on the same scenarios].",
         "",
         *main_table(cells),

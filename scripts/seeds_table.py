@@ -24,22 +24,16 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
 from formic_eval.paired import compare  # noqa: E402
-from formic_eval.paper import PAPER_SIZE, PAPER_STEPS, PAPER_TEAMS, paper_food  # noqa: E402
-from formic_eval.runner import EpisodeLog  # noqa: E402
+from formic_eval.paper import (FIG5_SETTINGS, PAPER_SIZE, PAPER_STEPS, PAPER_TEAMS, RIVALS, paper_food,  # noqa: E402
+                               setting_title, test_set_episodes)
+from formic_eval.runner import folder_episodes  # noqa: E402
 from formic_eval.seeds import SeedValidation, mean_over_seeds, seed_means, shipped_seed, spread  # noqa: E402
 
-SETTINGS = [(env, obstacles) for obstacles in (0.0, 0.05) for env in ("infinite", "finite", "wipeout")]
-BASELINES = [("csaf11", "C-SAF-11"), ("cardinality", "Cardinality-MR")]
-ENV_TITLES = {"infinite": "infinite", "finite": "finite", "wipeout": "infinite, 3 wipeouts"}
 
 
 def episodes(folder: Path, algorithm: str) -> list[dict]:
     """The folder's plain (no variant) episodes of ``algorithm`` in the paper's test protocol."""
-    log = Path(folder) / "episodes.jsonl"
-    if not log.exists():
-        return []
-    return [r for r in EpisodeLog(log).load().values() if r["algorithm"] == algorithm and r["variant"] == ""
-            and r["size"] == PAPER_SIZE and r["steps"] == PAPER_STEPS]
+    return test_set_episodes(folder_episodes(folder), algorithm)
 
 
 def validation_table(validations: list[SeedValidation]) -> list[str]:
@@ -56,10 +50,6 @@ def validation_table(validations: list[SeedValidation]) -> list[str]:
     return lines
 
 
-def signed(value: float) -> str:
-    return f"{value:+.0f}"
-
-
 def test_table(per_seed: dict[str, list[dict]], baselines: dict[str, list[dict]]) -> list[str]:
     names = list(per_seed)
     means = seed_means(per_seed)
@@ -68,11 +58,11 @@ def test_table(per_seed: dict[str, list[dict]], baselines: dict[str, list[dict]]
     alone = {algorithm: {name: compare(per_seed[name], records) for name in names}
              for algorithm, records in baselines.items()}
     header = ["| setting | agents | " + " | ".join(names) + " | mean ± std | paper | mean/paper | "
-              + " | ".join(f"seeds' mean − {title} [95%] | seeds ahead" for _, title in BASELINES) + " |",
-              "|---|---|" + "---|" * (len(names) + 3 + 2 * len(BASELINES))]
+              + " | ".join(f"seeds' mean − {title} [95%] | seeds ahead" for _, title in RIVALS) + " |",
+              "|---|---|" + "---|" * (len(names) + 3 + 2 * len(RIVALS))]
     lines = []
-    for env, obstacles in SETTINGS:
-        title = f"{ENV_TITLES[env]}, {obstacles * 100:g}% obstacles"
+    for env, obstacles in FIG5_SETTINGS:
+        title = setting_title(env, obstacles)
         for n in PAPER_TEAMS:
             setting = (PAPER_SIZE, n, obstacles, env, PAPER_STEPS)
             by_seed = means.get(setting, {})
@@ -84,10 +74,10 @@ def test_table(per_seed: dict[str, list[dict]], baselines: dict[str, list[dict]]
             row = [title, str(n), *(f"{by_seed[s]:.0f}" if s in by_seed else "–" for s in names),
                    f"{mean:.0f} ± {std:.0f}", f"{published:.0f}" if published else "–",
                    f"{mean / published:.2f}" if published else "–"]
-            for algorithm, _ in BASELINES:
+            for algorithm, _ in RIVALS:
                 d = versus[algorithm].get(setting)
                 ahead = [alone[algorithm][s].get(setting) for s in names]
-                row.append(f"{signed(d.mean)} [{signed(d.low)}, {signed(d.high)}] (n={d.n})" if d else "–")
+                row.append(d.food_text() if d else "–")
                 counted = [x for x in ahead if x is not None]
                 row.append(f"{sum(x.mean > 0 for x in counted)} of {len(counted)}" if counted else "–")
             lines.append("| " + " | ".join(row) + " |")
@@ -112,7 +102,7 @@ def main() -> None:
     print("\n".join(validation_table(validations)))
     per_seed = {v.name: episodes(folder, "formic") for v, folder in zip(validations, args.evals)}
     per_seed = {name: records for name, records in per_seed.items() if records}
-    baselines = {algorithm: episodes(args.baselines, algorithm) for algorithm, _ in BASELINES}
+    baselines = {algorithm: episodes(args.baselines, algorithm) for algorithm, _ in RIVALS}
     print("\n### Test (Fig. 5's cells)\n")
     print("\n".join(test_table(per_seed, baselines)))
 

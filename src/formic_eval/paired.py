@@ -46,6 +46,10 @@ class PairedDifference:
         scale = 100.0 / self.base_mean if self.base_mean else float("nan")
         return self.mean * scale, self.low * scale, self.high * scale
 
+    def food_text(self) -> str:
+        """As the README's tables print it: ``+12 [+3, +21] (n=20)``."""
+        return f"{self.mean:+.0f} [{self.low:+.0f}, {self.high:+.0f}] (n={self.n})"
+
 
 def paired_difference(a: Iterable[float], b: Iterable[float], confidence: float = 0.95) -> PairedDifference:
     """``a[i] - b[i]`` summarised; ``a`` and ``b`` are aligned pairs (at least one)."""

@@ -10,6 +10,7 @@ steps and gets about half at 512. Those plots' obstacle labels are known to be s
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 from formic_world.config import TEST_EPISODE_STEPS
@@ -17,6 +18,10 @@ from formic_world.config import TEST_EPISODE_STEPS
 PAPER_SIZE = 128
 PAPER_STEPS = TEST_EPISODE_STEPS
 PAPER_TEAMS = (16, 32, 64, 128)
+# Fig. 5's six settings (env, obstacle density), in the order the paper's panels read
+FIG5_SETTINGS = tuple((env, obstacles) for obstacles in (0.0, 0.05) for env in ("infinite", "finite", "wipeout"))
+# the baselines ForMIC must beat in every cell (issue 25), with their titles
+RIVALS = (("csaf11", "C-SAF-11"), ("cardinality", "Cardinality-MR"))
 ALGORITHM_TITLES = {
     "formic": "ForMIC",
     "planner": "centralized",
@@ -87,6 +92,13 @@ PAPER_ABLATION: dict[str, tuple[float, float, float, float]] = {
 PAPER_ALGORITHM = {"csaf-ref": "csaf", "csaf11-ref": "csaf11"}
 
 
+def test_set_episodes(records: Iterable[dict], algorithm: str, variant: str = "", **setting) -> list[dict]:
+    """The episodes of ``algorithm`` (and test variant) played by the paper's test protocol
+    (128x128, 1024 steps), optionally of one setting (``env=``, ``obstacles=``, ``agents=``)."""
+    return [r for r in records if r["algorithm"] == algorithm and r["variant"] == variant
+            and r["size"] == PAPER_SIZE and r["steps"] == PAPER_STEPS and all(r[k] == v for k, v in setting.items())]
+
+
 def paper_row(cell: dict) -> PaperRow | None:
     if cell["size"] != PAPER_SIZE or cell["steps"] != PAPER_STEPS or cell["agents"] not in PAPER_TEAMS:
         return None
@@ -111,6 +123,12 @@ def algorithm_label(cell: dict) -> str:
     """The cell's algorithm as the report and the figures name it."""
     title = ALGORITHM_TITLES.get(cell["algorithm"], cell["algorithm"])
     return f"{title} ({cell['variant']})" if cell["variant"] else title
+
+
+def setting_title(env: str, obstacles: float) -> str:
+    """One Fig. 5 setting in words, e.g. "infinite, 3 wipeouts, 5% obstacles"."""
+    what = {"infinite": "infinite", "finite": "finite", "wipeout": "infinite, 3 wipeouts"}[env]
+    return f"{what}, {obstacles * 100:g}% obstacles"
 
 
 def _setting(cell: dict) -> str:

@@ -77,6 +77,11 @@ class EpisodeLog:
             self._handle = None
 
 
+def folder_episodes(folder: str | Path) -> list[dict]:
+    """Every finished episode of an evaluation folder ([] when it has none yet)."""
+    return list(EpisodeLog(Path(folder) / "episodes.jsonl").load().values())
+
+
 @functools.cache
 def _learned_policy(model: str | None, model_digest: str, greedy: bool):
     """The learned policy of a worker, loaded once per model: loading a checkpoint is the costly

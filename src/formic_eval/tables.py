@@ -18,8 +18,8 @@ from pathlib import Path
 import numpy as np
 
 from .paired import pair_records
-from .paper import PAPER_SIZE, PAPER_STEPS, PAPER_TEAMS
-from .runner import EpisodeLog
+from .paper import PAPER_SIZE, PAPER_STEPS, PAPER_TEAMS, test_set_episodes
+from .runner import folder_episodes
 from .seeds import mean_over_seeds
 
 REFERENCE = "reference"
@@ -61,14 +61,11 @@ def cell_of(record: Mapping) -> tuple:
 
 def model_episodes(folder: Path, variant: str) -> list[dict]:
     """The learned model's episodes of one test variant in an evaluation folder, in the cells."""
-    log = Path(folder) / "episodes.jsonl"
-    if not log.exists():
-        return []
-    records = [r for r in EpisodeLog(log).load().values()
-               if r["algorithm"] == "formic" and r["variant"] == variant and cell_of(r) is not None]
+    records = [r for r in test_set_episodes(folder_episodes(folder), "formic", variant) if cell_of(r) is not None]
     models = {r["model"] for r in records}
     if len(models) > 1:
-        raise ValueError(f"{log}: episodes of several models ({', '.join(sorted(models))}); one row, one model")
+        raise ValueError(f"{Path(folder) / 'episodes.jsonl'}: episodes of several models "
+                         f"({', '.join(sorted(models))}); one row, one model")
     return records
 
 
