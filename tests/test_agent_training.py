@@ -16,7 +16,8 @@ import torch
 from formic_agent.checkpoint import CheckpointError, load_network, save_checkpoint
 from formic_runtime.episode import run_episode
 from formic_agent.learned import LearnedPolicy
-from formic_agent.network import NETWORK_PRESETS, ForMICNet, NetworkConfig, count_parameters
+from formic_agent.inputs import NETWORK_PRESETS, NetworkConfig
+from formic_agent.network import ForMICNet, count_parameters
 from formic_agent.policy import AgentBatch
 from formic_runtime.registry import make_policy
 from formic_trainer.algorithm import policy_losses, sampling_mask, set_learning_rate
@@ -381,7 +382,7 @@ def test_action_feedback_is_the_agents_own_last_action_and_whether_it_took_effec
     """Exact features on a hand-built world: a free move, a move into another agent, JOIN away
     from every queue, JOIN onto a cache queue, a queued agent (its action is ignored)."""
     from conftest import build_world, agent
-    from formic_agent.network import N_FEEDBACK_INPUTS, ActionFeedback
+    from formic_agent.inputs import ActionFeedback, N_FEEDBACK_INPUTS
     from formic_world.geometry import EAST, JOIN
 
     world = build_world([agent(2, 2), agent(3, 3), agent(3, 4), agent(6, 7, loaded=True),
@@ -427,7 +428,7 @@ def test_training_frames_and_the_learned_policy_give_the_same_action_feedback():
 
 def test_widening_a_network_with_feedback_inputs_keeps_what_it_does():
     from formic_agent.checkpoint import initialise_from
-    from formic_agent.network import N_EXTRA_INPUTS
+    from formic_agent.inputs import N_EXTRA_INPUTS
 
     torch.manual_seed(3)
     source, widened = ForMICNet(NETWORK_PRESETS["cpu-nest"]), ForMICNet(

@@ -6,7 +6,8 @@ import pytest
 import torch
 
 from formic_agent.checkpoint import load_network, read_checkpoint, save_checkpoint
-from formic_agent.network import NETWORK_PRESETS, ForMICNet
+from formic_agent.inputs import NETWORK_PRESETS
+from formic_agent.network import ForMICNet
 from scripts.average_checkpoints import main
 
 

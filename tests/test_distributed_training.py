@@ -44,6 +44,18 @@ def test_training_config_survives_its_json_form(tmp_path):
         train_config_from_dict({**CFG.to_dict(), "bogus": 1})
 
 
+def test_a_training_world_imports_no_torch():
+    """The world of a distributed run reads the training settings and draws their scenarios but
+    runs no network: importing torch there cost every train-ros launch 1.5 s of a core."""
+    import subprocess
+    import sys
+
+    code = ("import sys, formic_trainer.config, formic_trainer.worlds, formic_ros.training_world; "
+            "print('torch' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
+
+
 def test_world_stream_draws_the_trainers_scenarios():
     """The world node's scenarios (sample_scenarios on each episode's scenario_rng) are
     MetaAgents' ones, also when a run resumes at a later episode."""

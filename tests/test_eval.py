@@ -229,7 +229,8 @@ def test_no_pheromones_and_greedy_apply_to_the_learned_policy_only(tmp_path, mon
     import formic_runtime.episode
     import formic_runtime.registry
     from formic_agent.learned import LearnedPolicy
-    from formic_agent.network import NETWORK_PRESETS, ForMICNet
+    from formic_agent.inputs import NETWORK_PRESETS
+    from formic_agent.network import ForMICNet
 
     seen = []
     real = formic_runtime.episode.run_episode
@@ -349,7 +350,8 @@ def test_a_model_with_another_field_of_view_sees_the_same_layout_through_its_win
     import torch
 
     from formic_agent.checkpoint import save_checkpoint
-    from formic_agent.network import NETWORK_PRESETS, ForMICNet
+    from formic_agent.inputs import NETWORK_PRESETS
+    from formic_agent.network import ForMICNet
 
     torch.manual_seed(0)
     model = tmp_path / "fov5.pt"

@@ -27,7 +27,7 @@ torch = pytest.importorskip("torch")
 
 from formic_agent.checkpoint import CheckpointError, read_checkpoint  # noqa: E402
 from formic_agent.learned import LearnedPolicy  # noqa: E402
-from formic_agent.network import N_EXTRA_INPUTS  # noqa: E402
+from formic_agent.inputs import N_EXTRA_INPUTS  # noqa: E402
 from formic_ros.convert import decode_rollout, encode_rollout  # noqa: E402
 from formic_ros.learning_host import apply_weights  # noqa: E402
 from formic_ros.trainer_node import TrainerNode  # noqa: E402
@@ -204,7 +204,8 @@ def test_trainer_node_broadcasts_the_in_process_update(experience, monkeypatch):
 
 def read_bytes_of_other_network() -> bytes:
     from formic_agent.checkpoint import state_dict_bytes
-    from formic_agent.network import NETWORK_PRESETS, ForMICNet
+    from formic_agent.inputs import NETWORK_PRESETS
+    from formic_agent.network import ForMICNet
 
     return state_dict_bytes(ForMICNet(NETWORK_PRESETS["cpu-nest"]))
 

@@ -21,7 +21,9 @@ import torch
 from formic_world.errors import InputError
 from formic_world.files import atomic_open
 
-from .network import ForMICNet, NetworkConfig
+from .inputs import NetworkConfig
+
+from .network import ForMICNet
 
 CHECKPOINT_FORMAT = "formic-checkpoint"
 CHECKPOINT_VERSION = 1

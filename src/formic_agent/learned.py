@@ -9,7 +9,8 @@ import numpy as np
 import torch
 
 from .checkpoint import load_network
-from .network import ActionFeedback, ForMICNet, extra_inputs, nest_features
+from .inputs import ActionFeedback, extra_inputs, nest_features
+from .network import ForMICNet
 from .policy import AgentBatch, Policy, agent_uniforms, sample_rows
 
 

@@ -21,7 +21,7 @@ from formic_interfaces.msg import ActionBatch, ObservationBatch, ScenarioDescrip
 from formic_interfaces.msg import Rollout as RolloutMsg
 
 from formic_agent.checkpoint import CheckpointError, read_checkpoint
-from formic_agent.network import ActionFeedback, NetworkConfig
+from formic_agent.inputs import ActionFeedback, NetworkConfig
 from formic_agent.policy import AgentBatch
 import formic_topics as topics
 from formic_trainer.actor import Actor

@@ -10,7 +10,9 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from formic_agent.network import NETWORK_PRESETS, ForMICNet
+from formic_agent.inputs import NETWORK_PRESETS
+
+from formic_agent.network import ForMICNet
 
 from .config import TrainConfig
 from .rollout import Rollout

@@ -7,7 +7,9 @@ import time
 
 import torch
 
-from formic_agent.network import N_EXTRA_INPUTS, NETWORK_PRESETS, ForMICNet, count_parameters
+from formic_agent.inputs import NETWORK_PRESETS, N_EXTRA_INPUTS
+
+from formic_agent.network import ForMICNet, count_parameters
 
 from .config import make_config
 from .train import Trainer

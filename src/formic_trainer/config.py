@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
-from formic_agent.network import NETWORK_PRESETS
+from formic_agent.inputs import NETWORK_PRESETS
 from formic_world import REWARD_PRESETS, RewardConfig
 
 

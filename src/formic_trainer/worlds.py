@@ -8,7 +8,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from formic_agent.network import ActionFeedback, extra_inputs, nest_features
+from formic_agent.inputs import ActionFeedback, extra_inputs, nest_features
 from formic_agent.policy import AgentBatch
 from formic_runtime.registry import make_policy
 from formic_world import Scenario, World, WorldConfig, generate_scenario
