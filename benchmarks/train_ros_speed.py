@@ -31,7 +31,6 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 FORMIC = [sys.executable, "-m", "formic_cli.main"]
-EPISODE_STEPS = 512  # the cpu preset's
 STAMP = re.compile(r"^\[\w+\] \[(\d+\.\d+)\] \[([\w.]+)\]: (.*)$")
 
 
@@ -65,7 +64,9 @@ def over_ros(teams: int, episodes: int, work: Path) -> dict:
                 last_update = stamp
     if first_step is None or last_update is None:
         raise RuntimeError(f"no stepping or update line in {logs}")
-    steady = teams * EPISODE_STEPS * episodes / (last_update - first_step)
+    from formic_trainer.config import make_config
+
+    steady = teams * make_config("cpu").episode_steps * episodes / (last_update - first_step)
     return {"whole_s": seconds, "steady_agent_steps_per_s": steady}
 
 
