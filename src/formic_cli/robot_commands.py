@@ -48,8 +48,6 @@ run_robot_options = option_group(
 
 def robot_run_options(fields: dict):
     """Pop ``run_robot_options`` out of a command's kwargs: a RobotRunOptions, or None without --robots."""
-    from formic_ros.robot_launch import RobotRunOptions
-
     robots, simulate = fields.pop("robots"), fields.pop("robots_sim")
     names = ("tolerance", "cell_s", "max_speed", "max_turn", "stall_rate")
     settings = {name: fields.pop(f"robot_{name}") for name in names}
@@ -58,6 +56,8 @@ def robot_run_options(fields: dict):
         if simulate:
             raise click.UsageError("--robots-sim needs --robots")
         return None
+    from formic_ros.robot_launch import RobotRunOptions  # (rclpy: only for a run with robots)
+
     return RobotRunOptions(agents=robots, simulate=simulate, cell_size=cell_size, seed=fields["seed"], **settings)
 
 

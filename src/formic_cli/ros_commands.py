@@ -162,7 +162,8 @@ def world(scenario_file, domain_id, deadline_ms, stay, train_config, episodes, f
     """The world node: owns the simulation and steps it with the agents over ROS."""
     from formic_ros.lockstep import RunError
     from formic_ros.training_world import require_one_world, serve_training_world
-    from formic_ros.world_node import WorldNodeOptions, serve_world
+    from formic_ros.world_node import serve_world
+    from formic_ros.world_options import WorldNodeOptions
 
     world_kw = {name: fields.pop(name) for name in WORLD_OPTION_NAMES}  # the rest are WorldNodeOptions'
     options = WorldNodeOptions(deadline_s=deadline_ms / 1e3, view_port=view_port if live_view else None, **fields)

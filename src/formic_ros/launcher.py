@@ -31,7 +31,7 @@ from .env import check_domain_id, ros_environment, warn_if_exposed
 from .node_process import node_spec
 from .processes import RECORDER_GRACE_S, Children, JsonLines, watch
 from .world_lock import check_world_free
-from .world_node import WorldNodeOptions
+from .world_options import WorldNodeOptions
 
 if TYPE_CHECKING:
     from formic_trainer.config import TrainConfig

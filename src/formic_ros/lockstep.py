@@ -14,7 +14,8 @@ import numpy as np
 import formic_topics as topics
 from formic_world.geometry import NO_ACTION
 
-RESEND_S = 0.5  # step-0 observations are re-sent this often until every agent has answered
+RESEND_S = 0.1  # step-0 observations are re-sent this often until every agent has answered
+# (the first is often lost: published when the world saw a reader that had not yet matched it)
 STEP_RESEND_S = 0.25  # later steps: re-sent to the agents that have not answered after this long
 
 

@@ -24,7 +24,8 @@ def log(text: str) -> None:
 def world(options: dict, domain_id: int | None, scenario: str | None = None, train_config: str | None = None,
           episodes: int = 1, first_episode: int = 0) -> None:
     """One episode on ``scenario`` (a file), or training mode: ``episodes`` on ``train_config``'s."""
-    from .world_node import WorldNodeOptions, serve_world
+    from .world_node import serve_world
+    from .world_options import WorldNodeOptions
 
     options = WorldNodeOptions(**{k: tuple(v) if isinstance(v, list) else v for k, v in options.items()})
     if train_config is None:

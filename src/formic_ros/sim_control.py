@@ -375,6 +375,7 @@ class SimulationControl:
     def close(self) -> None:
         """Stop answering: waiting callers hear that the world is shutting down."""
         self.closing.set()
+        self.control_executor.wake()  # out of its spin_once now, not at the timeout
         self.thread.join(timeout=2.0)
         self.control_executor.shutdown(timeout_sec=1.0)  # callbacks under way finish first
         self.action.destroy()

@@ -10,7 +10,8 @@ from typing import TYPE_CHECKING, Callable
 import formic_topics as topics
 
 from .graph import publishers_of
-from .world_node import WorldNode, WorldNodeOptions
+from .world_node import WorldNode
+from .world_options import WorldNodeOptions
 
 if TYPE_CHECKING:
     from formic_trainer.config import TrainConfig

@@ -16,7 +16,6 @@ import json
 import sys
 import threading
 import time
-from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
@@ -39,38 +38,13 @@ from .parameters import declare_settings, settings_of
 from .robot_steps import robot_link
 from .ownership import Ownership, batch_of
 from .wire import encoding_code, read
+from .world_options import WorldNodeOptions
 
 LISTENER_REFRESH_S = 0.25  # how often the set of per-agent observation subscribers is re-read
-LINGER_S = 0.5  # the node stays up this long after the episode's last messages
+LINGER_S = 0.5  # the node stays up at most this long after the episode's last messages
+LINGER_POLL_S = 0.02  # how often it looks whether their readers have left
 ACK_TIMEOUT_S = 3.5  # at the end, how long subscribers get to acknowledge the last messages
 # (acks follow Fast DDS's ~3 s heartbeats: waited for only with a recorder, planner or viewer)
-
-
-@dataclass(frozen=True)
-class WorldNodeOptions:
-    namespace: str = topics.DEFAULT_NAMESPACE
-    deadline_s: float = 1.0  # lockstep: how long a step waits for the last action
-    startup_timeout_s: float = 60.0  # how long step 0 waits for every agent
-    rate_hz: float | None = None  # free-running: steps per second (no waiting for agents)
-    viewer_every: int = 10  # map, markers and score every k steps (0: never)
-    dt: float = 0.1  # simulated seconds per step (/clock)
-    policy_label: str = ""  # which policies drive the team, for the scenario message and summary
-    training_masks: bool = False  # fill ObservationBatch.train_masks (SPEC 4 filter)
-    observation_encoding: str = "compact"  # ObservationBatch: "compact" (lossless, ~10x smaller) or "float32"
-    require_subscribers: tuple[str, ...] = ()  # topics (e.g. "applied_actions") needing a subscriber before step 0
-    recorders: int = 0  # recorders that must match every topic before step 0 (more if present at start)
-    progress: bool = False
-    allow_empty: bool = False  # step on when no agent answered step 0 (else NobodyJoined)
-    view_port: int | None = None  # live view (formic_view, Foxglove WebSocket) on this port; None: none
-    external: tuple[int, ...] | None = None  # agents other nodes may drive (None: any; formic_ros.ownership)
-    drivers: tuple[str, ...] | None = None  # the run's own driver nodes, the only claimants of the rest (None: anyone)
-    paused: bool = False  # start paused at step 0 and stay up for simulation_interfaces clients (sim_control)
-    cell_size: float = 1.0  # metres per cell in the map frame (formic_world.metric_frame): entity poses
-    origin_x: float = 0.0  # map coordinates of the grid's south-west corner
-    origin_y: float = 0.0
-    robots: tuple[int, ...] = ()  # robot agents: each step waits for them to reach their cells (formic_ros.robot_steps)
-    robot_tolerance: float = 0.1  # metres from its cell's centre that count as a robot being in the cell
-    robot_cell_s: float = 10.0  # seconds a robot gets per cell of a move before the move counts as failed
 
 
 class WorldNode(Node):
@@ -234,11 +208,15 @@ class WorldNode(Node):
         self._listening_at = -np.inf  # re-read the per-agent listeners: the recorder is one
 
     def _linger(self, executor) -> None:
-        """Keep the node up a moment after the last messages: a process that exits at once
-        sometimes takes its final samples with it (seen with the done observations)."""
+        """Keep the node up after the last messages until their readers have left (a host
+        leaves once it has read the done observation), at most ``LINGER_S``: a process that
+        exits at once sometimes takes its final samples with it (seen with the done
+        observations). A reader that stays (a recorder, a viewer) gets the whole ``LINGER_S``."""
         until = time.monotonic() + LINGER_S
-        while time.monotonic() < until:
-            executor.spin_once(timeout_sec=max(0.0, until - time.monotonic()))
+        streams = [self.observations_pub, self.score_pub, self.clock_pub, self.map_pub, self.markers_pub,
+                   *self.agent_obs_pubs]
+        while (now := time.monotonic()) < until and any(p.get_subscription_count() for p in streams):
+            executor.spin_once(timeout_sec=min(LINGER_POLL_S, until - now))
 
     # -------------------------------------------------------------------- episode
     def run(self, executor, last: bool = True) -> dict:
