@@ -156,6 +156,15 @@ class Ownership:
             self.subscribe(ActionBatch, topic, qos.STREAM, lambda m, t=topic: self.offer_batch(m, t))
         self._bind(claim)
 
+    def unheard_claimants(self) -> set[str]:
+        """The nodes in the graph with a claims publisher whose claim has not arrived yet (a
+        latched claim reaches a reader some time after its node is discovered)."""
+        heard = {c["owner"] for c in (*self.claims.values(), *self.outsiders.values())}
+        present = {f"{info.node_namespace.rstrip('/')}/{info.node_name}"
+                   for info in self.node.get_publishers_info_by_topic(topics.full_name(self.namespace or "/",
+                                                                                        topics.CLAIMS))}
+        return present - heard
+
     def _outsider(self, claim: dict) -> str | None:
         """Why a claim may not count (None: it may): a node the run did not start claims agents
         the run's own drivers are to drive (say, a stray node that claims before the hosts start)."""

@@ -40,6 +40,7 @@ from .ownership import Ownership, batch_of
 from .wire import encoding_code, read
 from .world_options import WorldNodeOptions
 
+CLAIMS_WAIT_S = 2.0  # before step 0, at most this long for the claims of the claimants in the graph
 LISTENER_REFRESH_S = 0.25  # how often the set of per-agent observation subscribers is re-read
 LINGER_S = 0.5  # the node stays up at most this long after the episode's last messages
 LINGER_POLL_S = 0.02  # how often it looks whether their readers have left
@@ -187,6 +188,10 @@ class WorldNode(Node):
         if not self._settled:  # recorders already running are discovered before they are counted
             settle_discovery(self, executor)
             self._settled = True
+        # every claim of a node already in the graph is heard (and a stray one refused) before step 0
+        deadline = time.monotonic() + CLAIMS_WAIT_S
+        while self.ownership.unheard_claimants() and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.05)
         self.ownership.expect_recorders(max(self.options.recorders, recorders_present(self)))  # drivers wait too
         deadline = time.monotonic() + self.options.startup_timeout_s
         while missing := [n for n in self.options.require_subscribers if publishers[n].get_subscription_count() == 0]:
