@@ -34,6 +34,10 @@ BEGIN, END = "<!-- results:begin (scripts/readme_results.py) -->", "<!-- results
 ROWS = [("formic", ""), ("formic", "no-pheromones"), ("planner", ""), ("csaf11", ""), ("csaf", ""),
         ("cardinality", ""), ("csaf11-ref", ""), ("csaf-ref", ""), ("random", "")]
 
+# the paper's out-of-distribution pheromone dynamics (formic eval --variant), against standard trails
+TRAIL_VARIANTS = [("trails-flat", "trails without gradient"), ("trails-noisy", "trails with a noisy gradient"),
+                  ("trails-random", "trails of random concentration 0.2-1")]
+
 
 def percent_less(d: PairedDifference) -> str:
     """``d`` is changed minus base: how much less the changed one deposits, in % of base."""
@@ -87,6 +91,9 @@ def paired_table(model: list[dict], baselines: list[dict]) -> list[str]:
             rows.append((f"ForMIC − {title} (food)", {k[1]: d.food_text() for k, d in found.items()}))
         empty = compare(test_set_episodes(model, "formic", "no-pheromones", env=env, obstacles=obstacles), ours)
         rows.append(("pheromone channel empty: less food", {k[1]: percent_less(d) for k, d in empty.items()}))
+        for variant, what in TRAIL_VARIANTS:  # the paper's out-of-distribution tests (§V), where run
+            changed = compare(test_set_episodes(model, "formic", variant, env=env, obstacles=obstacles), ours)
+            rows.append((f"{what}: less food", {k[1]: percent_less(d) for k, d in changed.items()}))
         if env == "wipeout":
             plain = test_set_episodes(model, "formic", env="infinite", obstacles=obstacles)
             cost = compare(ours, plain, key=layout_key)

@@ -71,3 +71,27 @@ def test_readme_results_block_is_current():
     done = subprocess.run([sys.executable, str(root / "scripts" / "readme_results.py"), "--check", str(root / "README.md")],
                           capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
+
+
+def test_readme_paired_table_has_the_trail_variants_where_they_were_run():
+    """The README's paired block (scripts/readme_results.py) gives each out-of-distribution trail
+    variant that was evaluated a row, paired with standard trails on the same scenarios."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "scripts" / "readme_results.py"
+    spec = importlib.util.spec_from_file_location("readme_results", path)
+    readme_results = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(readme_results)
+
+    def paper(algorithm, food, seed, variant=""):
+        return {**record(algorithm, food, seed, agents=16), "variant": variant, "size": 128, "steps": 1024}
+
+    model = ([paper("formic", f, s) for f, s in ((100, 1), (200, 2))]
+             + [paper("formic", f, s, "trails-flat") for f, s in ((90, 1), (170, 2))])
+    baselines = [paper("csaf11", 50, s) for s in (1, 2)]
+    lines = readme_results.paired_table(model, baselines)
+    flat = next(line for line in lines if "trails without gradient" in line)
+    # differences -10 and -30: mean -20 of a 150 mean, 13% less; t(0.975, 1) * std(ddof=1) / sqrt(2) = 127.06
+    assert flat.startswith("|  | trails without gradient: less food | 13% [-71, 98] (n=2) | – |")
+    assert not any("noisy" in line or "random concentration" in line for line in lines)  # not run: no row
