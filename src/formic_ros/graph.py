@@ -27,15 +27,12 @@ RECORDER_NODE = "recorder"  # the node name of ``formic record`` (and the launch
 REPORT_GRAPH_LAG_S = 2.0  # a report whose sender the graph does not show is dropped only when older than this
 
 
-def settle_discovery(node: Node, executor, min_s: float = 1.0, quiet_s: float = 0.3, limit_s: float = 2.0,
-                     since: float | None = None) -> None:
-    """Spin until ``min_s`` after ``since`` (the monotonic time the node began discovering, as
-    when it was created; default: now) and until the graph has shown no new node for ``quiet_s``
-    (at most ``limit_s`` after ``since``): a process that has just started has not discovered the
-    nodes already running (on a loaded machine a recorder started before the world was not seen
-    within 0.3 s in 1 run of 3, was not waited for, and missed the first steps)."""
-    changed = time.monotonic()
-    started = changed if since is None else since
+def settle_discovery(node: Node, executor, min_s: float = 1.0, quiet_s: float = 0.3, limit_s: float = 2.0) -> None:
+    """Spin for at least ``min_s`` and until the graph has shown no new node for ``quiet_s`` (at
+    most ``limit_s``): a process that has just started has not discovered the nodes already
+    running (on a loaded machine a recorder started before the world was not seen within 0.3 s
+    in 1 run of 3, was not waited for, and missed the first steps)."""
+    started = changed = time.monotonic()
     seen = set(node.get_node_names_and_namespaces())
     while time.monotonic() - started < limit_s and (
             time.monotonic() - started < min_s or time.monotonic() - changed < quiet_s):

@@ -129,7 +129,6 @@ def serve_trainer(cfg: TrainConfig, run_dir: Path, resume: bool = True, namespac
     with stop_requests() as stop, contextlib.closing(learner), ros_session(domain_id, interrupt=False) as executor:
         node = TrainerNode(learner, namespace, max_lag)
         executor.add_node(node)
-        learner.optimizer  # noqa: B018 (its ~1 s import now, while the hosts act on the weights just published)
         while not (stop or node.updates == max_updates or node.received == max_rollouts):
             executor.spin_once(timeout_sec=0.1)
             node.report_silence()

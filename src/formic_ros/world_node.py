@@ -54,7 +54,6 @@ class WorldNode(Node):
 
     def __init__(self, scenario: Scenario, options: WorldNodeOptions = WorldNodeOptions()):
         super().__init__("world", namespace=options.namespace)
-        self.created_at = time.monotonic()  # discovery runs from here (settle_discovery)
         self.options = options
         declare_settings(self, settings_of(options))
         n = self.n_agents = scenario.config.n_agents
@@ -187,7 +186,7 @@ class WorldNode(Node):
                       topics.OBSERVATIONS: self.observations_pub, topics.SUMMARY: self.summary_pub,
                       topics.SCENARIO: self.scenario_pub, topics.SCORE: self.score_pub}
         if not self._settled:  # recorders already running are discovered before they are counted
-            settle_discovery(self, executor, since=self.created_at)
+            settle_discovery(self, executor)
             self._settled = True
         # every claim of a node already in the graph is heard (and a stray one refused) before step 0
         deadline = time.monotonic() + CLAIMS_WAIT_S

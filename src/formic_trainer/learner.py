@@ -43,7 +43,7 @@ class Learner:
         torch.set_num_threads(cfg.threads)
         torch.manual_seed(cfg.seed)
         self.net = training_network(cfg)
-        self._optimizer: torch.optim.Optimizer | None = None  # made when first needed (see optimizer)
+        self.optimizer = make_optimizer(self.net, cfg)
         self.episode = 0  # global environment episodes finished
         self.episode_sets = 0  # ends of episodes (sets) reported in this process
         self.updates = 0
@@ -93,15 +93,6 @@ class Learner:
             setattr(self, key, progress[key])
         self.log(f"resumed from {path}: episode {self.episode}, update {self.updates}")
         return payload.get("averaged_state_dict")
-
-    @property
-    def optimizer(self) -> torch.optim.Optimizer:
-        """Made on first use: constructing a torch optimizer imports ``torch._dynamo`` (about 1 s),
-        which a trainer node does after it has published the first weights, while the hosts act
-        (Adam keeps no state before its first step, so the updates are the same)."""
-        if self._optimizer is None:
-            self._optimizer = make_optimizer(self.net, self.cfg)
-        return self._optimizer
 
     def learn(self, rollout: Rollout, env_steps: int | None = None) -> dict[str, float]:
         """One update from one rollout; ``env_steps``: the agent-steps it stands for (default:
