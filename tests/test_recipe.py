@@ -107,6 +107,7 @@ SMOKE_TEXT = (ROOT / "recipes" / "smoke.toml").read_text()
     ("world_sizes = [[16, 16], [16, 20]]", "world_sizes = [[16, 16], [16]]", "world_sizes[1] must be a list of 2"),
     ('candidates = ["middle.mean", "last.mean"]', 'candidates = ["middle.mean", "nothing"]', "candidates 'nothing'"),
     ("scenarios = 1", "scenarios = 0", "validation.scenarios must be a whole number >= 1"),
+    ('start = "scratch"', 'start = "scratch"\nscaled = "no"', "stage 'first'.scaled must be true or false"),
 ])
 def test_a_malformed_recipe_is_one_line_of_error_before_anything_runs(tmp_path, old, new, message):
     assert old in SMOKE_TEXT
@@ -212,18 +213,20 @@ def test_a_recipe_trained_without_pheromones_is_validated_without_them(tmp_path)
 def test_a_scaled_recipe_keeps_every_stage_and_schedule_in_proportion():
     """`--scale F` (rows of a table at one smaller budget): every stage's episodes and mean
     windows times F in whole episode sets, and its (start, end) schedules with them; a schedule
-    that ends after its start still does (the crowd stage's filter, off after episode 1)."""
+    that ends after its start still does (the crowd stage's filter, off after episode 1). The
+    basics stage (`scaled = false`) stays whole; the budget shrinks with the episodes kept."""
     full, half = load_recipe("paper"), load_recipe("paper", scale=0.5)
     assert [s.name for s in half.stages] == [s.name for s in full.stages] and half.identity != full.identity
-    assert [s.episodes for s in half.stages] == [152, 300, 164, 104, 248, 168]
+    assert [s.episodes for s in half.stages] == [300, 300, 164, 104, 248, 168]
     assert [s.average for s in half.stages] == [None, None, None, (48, 8), (192, 8), (120, 8)]
+    assert half.stages[0] == full.stages[0]
     reference, crowd = half.stages[1].settings, half.stages[2].settings
     assert (reference["filter_anneal_start"], reference["filter_anneal_end"]) == (0, 300)
     assert (crowd["filter_anneal_start"], crowd["filter_anneal_end"]) == (0, 1)
     basics = stage_config(half, 0, Path("run"), seed=1)
     assert (basics.filter_anneal_start, basics.filter_anneal_end, basics.curriculum_start, basics.curriculum_end) == \
-        (20, 150, 30, 150)  # the cpu preset's 40-300 and 60-300, halved
-    assert half.budget_cpu_hours == full.budget_cpu_hours / 2
+        (40, 300, 60, 300)  # the cpu preset's, as in the full recipe
+    assert half.budget_cpu_hours == pytest.approx(full.budget_cpu_hours * 1284 / 2268)
     for bad in ("0", "1.5"):
         result = CliRunner().invoke(cli, ["train", "--recipe", "smoke", "--scale", bad, "--seed", "1",
                                           "--run-dir", "unused"])

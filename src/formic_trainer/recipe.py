@@ -83,7 +83,7 @@ class Recipe:
     validation: Validation
     switch: str = ""  # the switch applied to every stage ("" = the recipe as written)
     switches: tuple[str, ...] = ()  # every switch the file defines
-    scale: float = 1.0  # every stage's episodes, means and schedules times this (an equal, smaller budget)
+    scale: float = 1.0  # every scaled stage's episodes, means and schedules times this (an equal, smaller budget)
 
     @property
     def episodes(self) -> int:
@@ -109,7 +109,8 @@ def load_recipe(spec: str, switch: str = "", scale: float = 1.0) -> Recipe:
     """Read and check a recipe, with one of its switches (``[switch.NAME]``: settings laid over
     every stage, e.g. one row of the paper's ablation tables) when ``switch`` names one, and
     every stage's episodes, checkpoint means and episode schedules times ``scale`` (in (0, 1]:
-    rows of a table at one smaller budget). Every stage's configuration is built once here, so
+    rows of a table at one smaller budget), but for a stage marked ``scaled = false``, and the
+    budget times the share of episodes kept. Every stage's configuration is built once here, so
     a mistake fails before any training, in one line naming the file."""
     if not 0 < scale <= 1:
         raise RecipeError(f"the scale must be in (0, 1], not {scale}")
@@ -217,10 +218,11 @@ def _parse(data: dict, path: Path, text: str, switch: str = "", scale: float = 1
     switched, switch_names = _switch_settings(data, switch, defaults)
     stages: list[Stage] = []
     settings: dict = {}
+    full_episodes = 0
     if not isinstance(data["stage"], list) or not data["stage"]:
         raise RecipeError("needs one or more [[stage]] tables")
     for i, table in enumerate(data["stage"]):
-        _keys(table, f"stage {i + 1}", {"name", "episodes", "start"}, {"set", "average"})
+        _keys(table, f"stage {i + 1}", {"name", "episodes", "start"}, {"set", "average", "scaled"})
         name, start = table["name"], table["start"]
         where = f"stage {name!r}"
         earlier = {s.name: s for s in stages}
@@ -245,7 +247,11 @@ def _parse(data: dict, path: Path, text: str, switch: str = "", scale: float = 1
         if any(n % worlds for n in (episodes, *(average or ()))):
             raise RecipeError(f"{where}: episodes and average must be multiples of its {worlds} worlds "
                               "(one episode set plays one episode in each)")
-        if scale != 1:
+        scaled = table.get("scaled", True)
+        if type(scaled) is not bool:
+            raise RecipeError(f"{where}.scaled must be true or false, not {scaled!r}")
+        full_episodes += episodes
+        if scale != 1 and scaled:
             episodes = _scaled(episodes, scale, worlds)
             if average is not None:
                 average = (min(_scaled(average[0], scale, average[1]), episodes), average[1])
@@ -263,8 +269,8 @@ def _parse(data: dict, path: Path, text: str, switch: str = "", scale: float = 1
     validation = Validation(_number(table, "seed", "validation", least=0), _number(table, "size", "validation"),
                             tuple(teams), _number(table, "scenarios", "validation"),
                             _number(table, "steps", "validation"))
-    return Recipe(path, text, data["preset"], _number(data, "budget_cpu_hours", "recipe", float, 0) * scale,
-                  tuple(stages), tuple(candidates), validation, switch, switch_names, scale)
+    budget = _number(data, "budget_cpu_hours", "recipe", float, 0) * sum(s.episodes for s in stages) / full_episodes
+    return Recipe(path, text, data["preset"], budget, tuple(stages), tuple(candidates), validation, switch, switch_names, scale)
 
 
 def _reference(ref: str, stages: dict[str, Stage], where: str) -> None:
