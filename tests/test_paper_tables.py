@@ -100,3 +100,31 @@ def test_a_folder_with_two_models_in_one_row_is_refused(tmp_path):
         model_episodes(root / "fov21", "")
     done = run_tables(str(root))
     assert done.returncode == 1 and "several models (one, two)" in done.stderr
+
+
+def test_eval_tables_plans_each_finished_run_as_its_rows_are_tested(tmp_path):
+    """scripts/eval_tables.py: the reference as trained first, then every row's test in ROWS
+    order (the reference and the blind run with the channel empty), runs without a model
+    skipped; every command it prints is one `formic eval` accepts."""
+    import shlex
+
+    from formic_cli.main import cli
+
+    for run in ("reference", "no-pheromones", "fov5"):
+        (tmp_path / "runs" / run).mkdir(parents=True)
+        (tmp_path / "runs" / run / "model.pt").write_bytes(b"")
+    done = subprocess.run([sys.executable, str(ROOT / "scripts" / "eval_tables.py"), str(tmp_path / "runs"),
+                           str(tmp_path / "eval"), "--dry-run", "--workers", "3"],
+                          capture_output=True, text=True, timeout=60, env={"FORMIC": "formic", "PATH": ""})
+    assert done.returncode == 0, done.stderr
+    lines = done.stdout.splitlines()
+    planned = [line.split(": ", 1) for line in lines if not line.endswith("skipped")]
+    assert [head for head, _ in planned] == ["reference (as trained)", "no-pheromones (the channel empty)",
+                                             "reference (the channel empty)", "fov5 (as trained)"]
+    assert len(lines) == 11  # the reference twice and the ten rows' other nine runs, once each
+    for head, text in planned:
+        args = shlex.split(text)
+        assert args[:2] == ["formic", "eval"] and ("--no-pheromones" in args) == ("channel empty" in head)
+        assert args[args.index("--out") + 1] == str(tmp_path / "eval" / head.split()[0])
+        context = cli.commands["eval"].make_context("eval", args[2:])  # parses, runs nothing
+        assert context.params["workers"] == 3 and context.params["scenarios"] == "20"

@@ -270,7 +270,8 @@ def _parse(data: dict, path: Path, text: str, switch: str = "", scale: float = 1
                             tuple(teams), _number(table, "scenarios", "validation"),
                             _number(table, "steps", "validation"))
     budget = _number(data, "budget_cpu_hours", "recipe", float, 0) * sum(s.episodes for s in stages) / full_episodes
-    return Recipe(path, text, data["preset"], budget, tuple(stages), tuple(candidates), validation, switch, switch_names, scale)
+    return Recipe(path, text, data["preset"], budget, tuple(stages), tuple(candidates), validation, switch,
+                  switch_names, scale)
 
 
 def _reference(ref: str, stages: dict[str, Stage], where: str) -> None:
@@ -343,7 +344,7 @@ class _Run:
 
     def budget(self, episodes: int, cpu_seconds: float) -> str:
         hours, budget = cpu_seconds / 3600, self.recipe.budget_cpu_hours
-        return (f"recipe {episodes}/{self.recipe.episodes} episodes, {hours:.2f}/{budget:g} CPU-h"
+        return (f"recipe {episodes}/{self.recipe.episodes} episodes, {hours:.2f}/{budget:.1f} CPU-h"
                 f"{' (over budget)' if hours > budget else ''}")
 
     def stage(self, index: int) -> None:
