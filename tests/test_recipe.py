@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import re
 from pathlib import Path
 
@@ -231,3 +232,60 @@ def test_a_scaled_recipe_keeps_every_stage_and_schedule_in_proportion():
         result = CliRunner().invoke(cli, ["train", "--recipe", "smoke", "--scale", bad, "--seed", "1",
                                           "--run-dir", "unused"])
         assert result.exit_code == 1 and "the scale must be in (0, 1]" in result.output
+
+
+def test_a_run_directory_in_use_is_refused_at_once_and_freed_when_its_holder_dies(tmp_path):
+    """Two recipe processes on one folder would write over each other's checkpoints: the
+    second fails at once, naming the holder; a holder killed with SIGKILL leaves no stale lock."""
+    import signal
+    import subprocess
+    import sys
+
+    from formic_world.files import held_directory
+
+    run_dir = tmp_path / "run"
+    holder = subprocess.Popen([sys.executable, "-c", (
+        "import sys, time; from formic_world.files import held_directory\n"
+        f"with held_directory({str(run_dir)!r}):\n    print('held', flush=True); time.sleep(60)")],
+        stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        result = CliRunner().invoke(cli, ["train", "--recipe", "smoke", "--seed", "1", "--run-dir", str(run_dir)])
+        assert result.exit_code == 1 and result.output.count("\n") == 1, result.output
+        assert f"{run_dir} is in use by another process (pid {holder.pid})" in result.output
+        assert not (run_dir / "recipe.json").exists()  # refused before anything was written
+    finally:
+        os.kill(holder.pid, signal.SIGKILL)
+        holder.wait(timeout=10)
+    with held_directory(run_dir):
+        assert (run_dir / ".lock").read_text() == f"{os.getpid()}\n"
+
+
+def test_train_tables_trains_every_row_once_and_skips_a_row_another_process_holds(tmp_path):
+    """scripts/train_tables.sh: the reference row, then one row per switch of the recipe; a row
+    whose folder another process holds is skipped (two queues share the rows), and a second
+    pass finds every row done and trains nothing."""
+    import subprocess
+
+    from formic_world.files import held_directory
+
+    runs = tmp_path / "runs"
+
+    def train_tables() -> list[str]:
+        done = subprocess.run([str(ROOT / "scripts" / "train_tables.sh"), str(runs)], capture_output=True,
+                              text=True, timeout=300, env={**os.environ, "RECIPE": "smoke", "SCALE": "1"})
+        assert done.returncode == 0, done.stdout + done.stderr
+        return [line for line in done.stdout.splitlines() if not line.endswith(".log)")]
+
+    with held_directory(runs / "blind"):
+        assert train_tables() == [f"reference: done ({runs}/reference/model.pt)",
+                                  "blind: another process is training it, skipped",
+                                  f"all-learn: done ({runs}/all-learn/model.pt)"]
+    assert not (runs / "blind" / "model.pt").exists()
+    assert train_tables() == [f"reference: done ({runs}/reference/model.pt)",
+                              f"blind: done ({runs}/blind/model.pt)",
+                              f"all-learn: done ({runs}/all-learn/model.pt)"]
+    logs = {name: (runs / f"{name}.log").read_text() for name in ("reference", "blind", "all-learn")}
+    assert train_tables() == [f"{name}: done ({runs}/{name}/model.pt)" for name in logs]
+    assert {name: (runs / f"{name}.log").read_text() for name in logs} == logs
+    assert json.loads((runs / "blind" / "recipe.json").read_text())["switch"] == "blind"

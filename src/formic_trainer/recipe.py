@@ -27,7 +27,7 @@ from pathlib import Path
 
 from formic_agent.checkpoint import read_checkpoint
 from formic_world.errors import InputError
-from formic_world.files import atomic_open
+from formic_world.files import atomic_open, held_directory
 
 from .averaging import average_sources, write_average
 from .config import PRESETS, TrainConfig, make_config
@@ -319,11 +319,13 @@ def _write_json(path: Path, data: dict) -> None:
 
 def run_recipe(recipe: Recipe, run_dir: Path, seed: int, echo: Callable[[str], None] = print) -> Path:
     """Run (or resume) every stage of ``recipe`` in ``run_dir``, then choose the model on
-    validation; returns ``run_dir/model.pt``."""
-    run = _Run(recipe, Path(run_dir), seed, echo)
-    for index in range(len(recipe.stages)):
-        run.stage(index)
-    return run.select()
+    validation; returns ``run_dir/model.pt``. The run holds ``run_dir`` throughout: a second
+    process on the same folder fails at once."""
+    with held_directory(run_dir):
+        run = _Run(recipe, Path(run_dir), seed, echo)
+        for index in range(len(recipe.stages)):
+            run.stage(index)
+        return run.select()
 
 
 class _Run:
