@@ -8,8 +8,10 @@ The shipped model's episodes come from ``--model-eval`` (its ``formic`` records,
 the baselines' and the planner's from ``--baselines-eval`` (every other algorithm), on the same
 stored scenarios. The block holds: food per cell beside the paper's, a figure, and the paired
 comparisons (mean of per-scenario differences with 95% intervals, ``formic_eval.paired``):
-ForMIC against C-SAF-11 and Cardinality-MR, the cost of an empty pheromone channel, and the
-cost of wipeouts on the same layouts. Every number names its model by file and digest.
+ForMIC against C-SAF-11 and Cardinality-MR, the cost of an empty pheromone channel, of the
+out-of-distribution trails and of wipeouts on the same layouts; then the 32x32 and 64x64 worlds
+(food per cell, ForMIC against each rival paired), once the model has played them. Every number
+names its model by file and digest.
 """
 
 from __future__ import annotations
@@ -33,6 +35,9 @@ BEGIN, END = "<!-- results:begin (scripts/readme_results.py) -->", "<!-- results
 # rows of the main table, in order: (algorithm, variant)
 ROWS = [("formic", ""), ("formic", "no-pheromones"), ("planner", ""), ("csaf11", ""), ("csaf", ""),
         ("cardinality", ""), ("csaf11-ref", ""), ("csaf-ref", ""), ("random", "")]
+
+# the reference code's plots' smaller worlds (infinite resources, no obstacles, 1024 steps)
+SMALL_SIZES = (32, 64)
 
 # the paper's out-of-distribution pheromone dynamics (formic eval --variant), against standard trails
 TRAIL_VARIANTS = [("trails-flat", "trails without gradient"), ("trails-noisy", "trails with a noisy gradient"),
@@ -107,6 +112,50 @@ def paired_table(model: list[dict], baselines: list[dict]) -> list[str]:
     return header + lines if lines else []
 
 
+def small_world_episodes(records: list[dict]) -> list[dict]:
+    """The episodes (as trained, no test variant) in the reference code's smaller worlds."""
+    return [r for r in records if r["size"] in SMALL_SIZES and r["steps"] == PAPER_STEPS and r["variant"] == ""
+            and r["env"] == "infinite" and r["obstacles"] == 0]
+
+
+def small_world_tables(model: list[dict], baselines: list[dict]) -> list[str]:
+    """Food per cell in the 32x32 and 64x64 worlds, then ForMIC against each rival paired per
+    scenario; nothing until the model has played them."""
+    ours = small_world_episodes(model)
+    if not ours:
+        return []
+    sizes = sorted({r["size"] for r in ours})
+    rivals = [r for r in small_world_episodes(baselines) if r["size"] in sizes]
+    by_key = {(c["algorithm"], c["size"], c["agents"]): c for c in aggregate(ours + rivals)}
+    lines = ["| world | algorithm | " + " | ".join(f"{n} agents" for n in PAPER_TEAMS) + " |",
+             "|---|---|" + "---|" * len(PAPER_TEAMS)]
+    paired = ["| world | comparison | " + " | ".join(f"{n} agents" for n in PAPER_TEAMS) + " |",
+              "|---|---|" + "---|" * len(PAPER_TEAMS)]
+    for size in sizes:
+        first = True
+        for algorithm, variant in ROWS:
+            row = [by_key.get((algorithm, size, n)) for n in PAPER_TEAMS] if not variant else []
+            if not any(row):
+                continue
+            label = next(algorithm_label(c) for c in row if c)
+            label = f"**{label}**" if algorithm == "formic" else label
+            counts = sorted({c["n"] for c in row if c})
+            world = f"{size}x{size} (n={'/'.join(map(str, counts))})" if first else ""
+            lines.append(f"| {world} | {label} | " + " | ".join(food_cell(c) for c in row) + " |")
+            first = False
+        world = f"{size}x{size}"
+        for name, title in RIVALS:
+            found = compare([r for r in ours if r["size"] == size],
+                            [r for r in rivals if r["algorithm"] == name and r["size"] == size])
+            by_team = {k[1]: d.food_text() for k, d in found.items()}
+            if by_team:
+                paired.append(f"| {world} | ForMIC − {title} (food) | "
+                              + " | ".join(by_team.get(n, "–") for n in PAPER_TEAMS) + " |")
+                world = ""
+    return ["In the reference code's smaller worlds (infinite resources, no obstacles, 1024 steps; "
+            "mean ± std over the n scenarios, [food ÷ the planner's]):", "", *lines, "", *paired]
+
+
 def paper_ratio_line(cells: list[dict]) -> list[str]:
     """ForMIC's food over the paper's ForMIC per cell (the paper gives no spread: a plain ratio)."""
     lines = []
@@ -137,6 +186,7 @@ def block(model_eval: Path, baselines_eval: Path, model_file: Path, figure: Path
     if draw:
         plot_food_vs_team([c for c in cells if c["variant"] == ""], figure)
     rel = lambda p: Path(p).resolve().relative_to(ROOT).as_posix()  # noqa: E731
+    small_worlds = small_world_tables(model, baselines)
     parts = [
         BEGIN,
         f"ForMIC here is `{rel(model_file)}` (digest `{digests[0]}`), its episodes in `{rel(model_eval)}/`; "
@@ -158,6 +208,7 @@ def block(model_eval: Path, baselines_eval: Path, model_file: Path, figure: Path
         "\"less food\" is that difference as a share of the first one's mean.",
         "",
         *paired_table(model, baselines),
+        *([""] + small_worlds if small_worlds else []),
         END,
     ]
     return "\n".join(parts)

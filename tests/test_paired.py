@@ -95,3 +95,31 @@ def test_readme_paired_table_has_the_trail_variants_where_they_were_run():
     # differences -10 and -30: mean -20 of a 150 mean, 13% less; t(0.975, 1) * std(ddof=1) / sqrt(2) = 127.06
     assert flat.startswith("|  | trails without gradient: less food | 13% [-71, 98] (n=2) | – |")
     assert not any("noisy" in line or "random concentration" in line for line in lines)  # not run: no row
+
+
+def test_readme_small_worlds_table_gives_food_per_cell_and_pairs_formic_with_each_rival():
+    """scripts/readme_results.py: in the 32x32 and 64x64 worlds, food per cell (with the ratio
+    to the planner) and ForMIC minus each rival paired per scenario; no section before the model
+    has played them."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "scripts" / "readme_results.py"
+    spec = importlib.util.spec_from_file_location("readme_results", path)
+    readme_results = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(readme_results)
+
+    def small(algorithm, food, seed, size=32):
+        return {**record(algorithm, food, seed, agents=32), "size": size, "steps": 1024, "scenario": f"s{seed}",
+                "food_curve": [0.0, food], "step_ms_mean": 1.0, "world_step_ms_mean": 1.0}
+
+    model = [small("formic", f, s) for f, s in ((100, 1), (140, 2), (120, 3))]
+    baselines = ([small("csaf11", f, s) for f, s in ((80, 1), (90, 2), (100, 3))]
+                 + [small("planner", 200, s) for s in (1, 2, 3)] + [small("csaf11", 500, 1, size=64)])
+    assert readme_results.small_world_tables([], baselines) == []
+    lines = readme_results.small_world_tables(model, baselines)
+    assert "| 32x32 (n=3) | **ForMIC** | – | 120 ± 20 [0.60] | – | – |" in lines
+    assert "|  | C-SAF-11 | – | 90 ± 10 [0.45] | – | – |" in lines
+    # differences 20, 50, 20: mean 30, std 17.32; t(0.975, 2) = 4.303 -> half-width 43.0
+    assert "| 32x32 | ForMIC − C-SAF-11 (food) | – | +30 [-13, +73] (n=3) | – | – |" in lines
+    assert not any(line.startswith("| 64x64") for line in lines)  # ForMIC has not played it
