@@ -2,6 +2,8 @@
 """The paper's Tables I-III rebuilt from evaluation folders, beside the paper's (markdown).
 
     .venv/bin/python scripts/paper_tables.py eval/tables [--seeds eval/recipe-paper/seed1 eval/recipe-paper/seed2]
+    .venv/bin/python scripts/paper_tables.py --write README.md   # the README's block, from the defaults
+    .venv/bin/python scripts/paper_tables.py --check README.md   # exit 1 if the README is stale
 
 ROOT holds one folder per row, named by its recipe switch (``ROOT/no-curriculum``, ...), and
 ``ROOT/reference``: the unchanged recipe at the same budget. Each holds ``formic eval`` of that
@@ -9,7 +11,8 @@ run's ``model.pt`` on the tables' 16 cells (docs/training.md has the commands; t
 also with the channel empty, and the blind ``no-pheromones`` run only so, as the paper tested
 them). ``formic_eval.tables`` says how a row's relative performance is computed.
 ``--seeds``: the unchanged recipe's seeds (full budget), whose spread is printed as the noise
-scale of one seed. A row not evaluated yet says so.
+scale of one seed. A row not evaluated yet says so. The defaults are the README's: ``eval/tables``
+and every ``eval/recipe-paper/seedS`` folder.
 """
 
 from __future__ import annotations
@@ -21,9 +24,11 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
+from formic_eval.markdown_block import write_or_check  # noqa: E402
 from formic_eval.paper import PAPER_TEAMS  # noqa: E402
 from formic_eval.tables import REFERENCE, ROWS, relative_performance, seed_noise  # noqa: E402
 
+BEGIN, END = "<!-- tables:begin (scripts/paper_tables.py) -->", "<!-- tables:end -->"
 TITLES = {"I": "Table I: ablations", "II": "Table II: learning and non-learning agents in teams of 32",
           "III": "Table III: field of view"}
 
@@ -32,24 +37,30 @@ def percent(mean: float, std: float) -> str:
     return f"{mean:.1f}% ± {std:.1f}%"
 
 
+def shown(path: Path) -> str:
+    """A path as the block prints it: relative to the repository where it lies inside."""
+    path = Path(path)
+    return path.resolve().relative_to(ROOT).as_posix() if path.resolve().is_relative_to(ROOT) else str(path)
+
+
 def tables(root: Path, seeds: list[Path]) -> list[str]:
-    lines = [f"Relative to `{root / REFERENCE}` on the same scenarios: per cell (infinite resources with and "
+    lines = [f"Relative to `{shown(root / REFERENCE)}` on the same scenarios: per cell (infinite resources with and "
              "without 3 wipeouts, 0% and 5% obstacles, 16/32/64/128 agents; 128x128, 1024 steps) the row's food "
              "over the reference's, then the mean ± sample std over the cells, as the paper computed Table I."]
     noise = seed_noise(seeds)
     if noise is not None:
+        lines.append("")
         lines.append(f"Noise scale of one seed (the unchanged recipe's {len(seeds)} seeds, each over their mean, "
                      f"{noise.cells} seed-cells): ± {noise.std:.1f}%.")
     for table, title in TITLES.items():
-        lines += ["", f"### {title}", "",
+        lines += ["", f"#### {title}", "",
                   "| row | ours | paper | " + " | ".join(f"{n} agents" for n in PAPER_TEAMS) + " | cells |",
                   "|---|---|---|" + "---|" * (len(PAPER_TEAMS) + 1)]
         for row in (r for r in ROWS if r.table == table):
             found = relative_performance(root, row)
             paper = f"{row.paper[0]:.2f}% ± {row.paper[1]:.2f}%"  # as published
             if found is None:
-                folder = root / row.switch
-                lines.append(f"| {row.label} | not evaluated yet ({folder}) | {paper} | "
+                lines.append(f"| {row.label} | not evaluated yet ({shown(root / row.switch)}) | {paper} | "
                              + " | ".join("–" for _ in PAPER_TEAMS) + " | 0 |")
                 continue
             teams = " | ".join(f"{found.by_team[n]:.0f}%" if n in found.by_team else "–" for n in PAPER_TEAMS)
@@ -57,17 +68,27 @@ def tables(root: Path, seeds: list[Path]) -> list[str]:
     return lines
 
 
-def main() -> None:
+def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("root", type=Path, help="the folder of the rows' evaluation folders")
-    parser.add_argument("--seeds", nargs="*", type=Path, default=[],
+    parser.add_argument("root", type=Path, nargs="?", default=ROOT / "eval" / "tables",
+                        help="the folder of the rows' evaluation folders")
+    parser.add_argument("--seeds", nargs="*", type=Path, default=sorted(ROOT.glob("eval/recipe-paper/seed*")),
                         help="eval folders of the unchanged recipe's seeds (the noise scale)")
+    action = parser.add_mutually_exclusive_group()
+    action.add_argument("--write", type=Path, metavar="README", help="replace the tables block in this file")
+    action.add_argument("--check", type=Path, metavar="README", help="exit 1 if this file's tables block is stale")
     args = parser.parse_args()
     try:
-        print("\n".join(tables(args.root, args.seeds)))
+        lines = tables(args.root, args.seeds)
     except ValueError as exc:
         sys.exit(f"paper_tables: {exc}")
+    target = args.write or args.check
+    if target is None:
+        print("\n".join(lines))
+        return 0
+    return write_or_check(target, BEGIN, END, "\n".join([BEGIN, *lines, END]), check=args.check is not None,
+                          command="scripts/paper_tables.py")
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -23,6 +23,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
+from formic_eval.markdown_block import write_or_check  # noqa: E402
 from formic_eval.matrix import file_digest  # noqa: E402
 from formic_eval.paired import PairedDifference, compare, layout_key  # noqa: E402
 from formic_eval.paper import (FIG5_SETTINGS, PAPER_SIZE, PAPER_STEPS, PAPER_TEAMS, RIVALS,  # noqa: E402
@@ -214,13 +215,6 @@ def block(model_eval: Path, baselines_eval: Path, model_file: Path, figure: Path
     return "\n".join(parts)
 
 
-def splice(text: str, new_block: str) -> str:
-    start, end = text.find(BEGIN), text.find(END)
-    if start < 0 or end < start:
-        raise SystemExit(f"the README has no results block ({BEGIN} ... {END})")
-    return text[:start] + new_block + text[end + len(END):]
-
-
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--model-eval", type=Path, default=ROOT / "eval" / "formic_paper")
@@ -236,15 +230,8 @@ def main() -> int:
     if target is None:
         print(new_block)
         return 0
-    text = target.read_text()
-    updated = splice(text, new_block)
-    if args.check:
-        if updated != text:
-            print(f"{target}'s results block is stale: run scripts/readme_results.py --write {target}", file=sys.stderr)
-            return 1
-        return 0
-    target.write_text(updated)
-    return 0
+    return write_or_check(target, BEGIN, END, new_block, check=args.check is not None,
+                          command="scripts/readme_results.py")
 
 
 if __name__ == "__main__":

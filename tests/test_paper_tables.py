@@ -85,9 +85,9 @@ def test_the_script_prints_each_table_beside_the_paper_and_names_rows_not_yet_ev
     assert f"not evaluated yet ({root / 'no-pruning'})" in missing and missing.endswith("| 0 |")
     assert "Noise scale of one seed (the unchanged recipe's 2 seeds, each over their mean, 32 seed-cells): ± 10.2%." \
         in lines
-    assert [line for line in lines if line.startswith("### ")] == [
-        "### Table I: ablations", "### Table II: learning and non-learning agents in teams of 32",
-        "### Table III: field of view"]
+    assert [line for line in lines if line.startswith("#### ")] == [
+        "#### Table I: ablations", "#### Table II: learning and non-learning agents in teams of 32",
+        "#### Table III: field of view"]
 
 
 def test_a_folder_with_two_models_in_one_row_is_refused(tmp_path):
@@ -128,3 +128,10 @@ def test_eval_tables_plans_each_finished_run_as_its_rows_are_tested(tmp_path):
         assert args[args.index("--out") + 1] == str(tmp_path / "eval" / head.split()[0])
         context = cli.commands["eval"].make_context("eval", args[2:])  # parses, runs nothing
         assert context.params["workers"] == 3 and context.params["scenarios"] == "20"
+
+
+def test_readme_tables_block_is_current():
+    """The README's Tables I-III block is what scripts/paper_tables.py builds from the committed
+    evaluation folders (its defaults: eval/tables and every eval/recipe-paper/seedS)."""
+    done = run_tables("--check", str(ROOT / "README.md"))
+    assert done.returncode == 0, done.stderr
