@@ -11,7 +11,12 @@ seed out of the test table). ``--baselines``: the baselines' episodes on the sam
 (``scripts/eval_readme.sh``). Prints markdown: the validation table and the seed chosen on
 it, then per Fig. 5 cell each seed's food, the mean ± std over seeds beside the paper's ForMIC,
 and the mean over seeds against C-SAF-11 and Cardinality-MR, paired per scenario (95%
-intervals), with how many seeds are ahead on their own.
+intervals), with how many seeds are ahead on their own. Without ``--runs``: every finished seed
+(``models/training/recipe-paper/seedS`` with its ``selection.json``) and its
+``eval/recipe-paper/seedS`` folder, the README's block:
+
+    .venv/bin/python scripts/seeds_table.py --write README.md   # replace the block in place
+    .venv/bin/python scripts/seeds_table.py --check README.md   # exit 1 if the README is stale
 """
 
 from __future__ import annotations
@@ -23,12 +28,18 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
+from formic_eval.markdown_block import write_or_check  # noqa: E402
 from formic_eval.paired import compare  # noqa: E402
 from formic_eval.paper import (FIG5_SETTINGS, PAPER_SIZE, PAPER_STEPS, PAPER_TEAMS, RIVALS, paper_food,  # noqa: E402
                                setting_title, test_set_episodes)
 from formic_eval.runner import folder_episodes  # noqa: E402
 from formic_eval.seeds import SeedValidation, mean_over_seeds, seed_means, shipped_seed, spread  # noqa: E402
 
+
+
+BEGIN, END = "<!-- seeds:begin (scripts/seeds_table.py) -->", "<!-- seeds:end -->"
+RUNS = ROOT / "models" / "training" / "recipe-paper"
+EVALS = ROOT / "eval" / "recipe-paper"
 
 
 def episodes(folder: Path, algorithm: str) -> list[dict]:
@@ -45,8 +56,8 @@ def validation_table(validations: list[SeedValidation]) -> list[str]:
                                                                for n in teams) + f" | {v.food_mean:.1f} |")
     ships = shipped_seed(validations)
     means, std = spread([v.food_mean for v in validations])
-    lines += ["", f"Mean over seeds {means:.1f} ± {std:.1f}. Ships: **{ships.name}** ({ships.chosen}), the highest "
-              "mean validation food (validation scenarios only; no test episode is read for the choice)."]
+    lines += ["", f"Mean over seeds {means:.1f} ± {std:.1f}. Chosen to ship: **{ships.name}** ({ships.chosen}), "
+              "the highest mean validation food (validation scenarios only; no test episode is read for the choice)."]
     return lines
 
 
@@ -85,27 +96,42 @@ def test_table(per_seed: dict[str, list[dict]], baselines: dict[str, list[dict]]
     return header + lines if lines else ["(no test episodes of these seeds yet: scripts/eval_model.sh)"]
 
 
-def main() -> None:
+def tables(runs: list[Path], evals: list[Path], baselines_folder: Path) -> list[str]:
+    """The validation table and the seed that ships, then the test table."""
+    validations = [SeedValidation.load(run) for run in runs]
+    per_seed = {v.name: episodes(folder, "formic") for v, folder in zip(validations, evals)}
+    per_seed = {name: records for name, records in per_seed.items() if records}
+    baselines = {algorithm: episodes(baselines_folder, algorithm) for algorithm, _ in RIVALS}
+    return ["#### Validation", "", *validation_table(validations), "",
+            "#### Test (Fig. 5's cells)", "", *test_table(per_seed, baselines)]
+
+
+def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--runs", nargs="+", type=Path, required=True, help="each seed's recipe run directory")
+    parser.add_argument("--runs", nargs="+", type=Path, help="each seed's recipe run directory")
     parser.add_argument("--evals", nargs="*", type=Path, default=[],
                         help="each seed's eval_model.sh folder, same order")
     parser.add_argument("--baselines", type=Path, default=ROOT / "eval" / "readme", help="the baselines' eval folder")
+    action = parser.add_mutually_exclusive_group()
+    action.add_argument("--write", type=Path, metavar="README", help="replace the seeds block in this file")
+    action.add_argument("--check", type=Path, metavar="README", help="exit 1 if this file's seeds block is stale")
     args = parser.parse_args()
+    if args.runs is None:
+        args.runs = sorted(run for run in RUNS.glob("seed*") if (run / "selection.json").is_file())
+        args.evals = [EVALS / run.name for run in args.runs]
     if args.evals and len(args.evals) != len(args.runs):
         parser.error(f"--evals names {len(args.evals)} folders for {len(args.runs)} runs")
     try:
-        validations = [SeedValidation.load(run) for run in args.runs]
+        lines = tables(args.runs, args.evals, args.baselines)
     except ValueError as exc:
         sys.exit(f"seeds_table: {exc}")
-    print("### Validation\n")
-    print("\n".join(validation_table(validations)))
-    per_seed = {v.name: episodes(folder, "formic") for v, folder in zip(validations, args.evals)}
-    per_seed = {name: records for name, records in per_seed.items() if records}
-    baselines = {algorithm: episodes(args.baselines, algorithm) for algorithm, _ in RIVALS}
-    print("\n### Test (Fig. 5's cells)\n")
-    print("\n".join(test_table(per_seed, baselines)))
+    target = args.write or args.check
+    if target is None:
+        print("\n".join(lines))
+        return 0
+    return write_or_check(target, BEGIN, END, "\n".join([BEGIN, *lines, END]), check=args.check is not None,
+                          command="scripts/seeds_table.py")
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -79,7 +79,7 @@ def test_the_table_reports_each_seed_their_spread_the_paper_and_paired_differenc
     assert done.returncode == 0, done.stderr
     lines = done.stdout.splitlines()
     assert "| seed1 | novalid.mean | 110.0 | 200.0 |" in lines and "| seed2 | novalid128.mean | 150.0 | 250.0 |" in lines
-    assert "Mean over seeds 225.0 ± 35.4. Ships: **seed2** (novalid128.mean)" in done.stdout
+    assert "Mean over seeds 225.0 ± 35.4. Chosen to ship: **seed2** (novalid128.mean)" in done.stdout
     published = paper_food({"algorithm": "formic", "variant": "", **SETTING})
     # pooled per scenario: a 120, b 140; C-SAF-11 a 90, b 100: differences 30 and 40, t(1) interval
     # 35 +- 12.706 * 5; Cardinality-MR 130 both: -10 and +10. Alone: seed1 is behind Cardinality-MR.
@@ -95,3 +95,12 @@ def test_evals_must_match_the_runs_one_for_one(tmp_path):
                            "--evals", str(tmp_path / "a"), str(tmp_path / "b")], capture_output=True, text=True,
                           timeout=60)
     assert done.returncode == 2 and "--evals names 2 folders for 1 runs" in done.stderr
+
+
+def test_readme_seeds_block_is_current():
+    """The README's seeds block is what scripts/seeds_table.py builds from the committed runs and
+    evaluation folders (its defaults: every finished recipe-paper seed)."""
+    script = ROOT / "scripts" / "seeds_table.py"
+    done = subprocess.run([sys.executable, str(script), "--check", str(ROOT / "README.md")],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
