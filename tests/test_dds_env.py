@@ -93,12 +93,15 @@ def test_default_profile_discovers_on_this_machine_and_binds_loopback_only():
     py = [sys.executable, PROBE, "listen", "40"]
     p = subprocess.Popen(py, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     base = 7400 + 250 * domain
+    # the well-known ports (docs/ros.md, "Network exposure"): multicast, and the unicast pairs of
+    # the first participant indexes; Fast DDS's ephemeral sending ports (any interface, any port
+    # number, sometimes one inside the domain's range) are not listening locators
+    well_known = {base, base + 1, 7000, 7001} | {base + 10 + 2 * i + k for i in range(8) for k in (0, 1)}
 
     def listening() -> tuple[list[str], list[str]]:
         ss = subprocess.run(["ss", "-ulpnH"], capture_output=True, text=True, timeout=10).stdout
         mine = [line.split()[3] for line in ss.splitlines() if f"pid={p.pid}," in line]
-        return mine, [a for a in mine if base <= int(a.rsplit(":", 1)[1]) < base + 250
-                      or a.endswith(":7000") or a.endswith(":7001")]
+        return mine, [a for a in mine if int(a.rsplit(":", 1)[1]) in well_known]
 
     deadline = time.monotonic() + 30  # until the participant is up (a loaded machine imports rclpy slowly)
     try:
