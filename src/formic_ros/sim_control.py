@@ -24,6 +24,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.action import ActionServer, CancelResponse
@@ -43,7 +44,9 @@ from formic_world import Scenario, generate_scenario
 from . import viewer_msgs
 from .parameters import declare_settings, settings_of
 from .sim_entities import Entity, FilterError, entity_info, entity_state, select, world_entities
-from .world_node import WorldNode
+
+if TYPE_CHECKING:  # the world node builds its control lazily (world_node.serve_world): no import loop at run time
+    from .world_node import WorldNode
 
 CONTROL_NODE = "world_control"
 SERVICES = {  # name in the namespace -> type
