@@ -46,6 +46,40 @@ def run(run_dir: Path, stop_at: str | None = None) -> list[str]:
     return lines
 
 
+def check_model_card(run_dir: Path, selection: dict, tmp_path: Path) -> None:
+    """scripts/model_card.py on a finished run: the command that rebuilds it, one row per stage
+    with what it changes, the candidates' validation food with the choice; a shipped copy that is
+    not the run's model is refused; --write fills a card's block and --check then passes."""
+    import subprocess
+    import sys
+
+    def card(*args: str) -> subprocess.CompletedProcess:
+        return subprocess.run([sys.executable, str(ROOT / "scripts" / "model_card.py"), str(run_dir), *args],
+                              capture_output=True, text=True, timeout=60)
+
+    done = card()
+    assert done.returncode == 0, done.stderr
+    lines = done.stdout.splitlines()
+    assert f"**Built by** `formic train --recipe smoke --seed 1 --run-dir {run_dir}` (`recipes/smoke.toml`): 12 " \
+        "training episodes" in done.stdout
+    rows = [line for line in lines if line.startswith(("| first |", "| middle |", "| last |"))]
+    assert [row.split(" | ")[1] for row in rows] == ["4 of 4", "4 of 4, mean of episodes 2-4 every 2",
+                                                     "4 of 4, mean of episodes 2-4 every 2"]
+    assert rows[1].split(" | ")[3] == "`learning_agents=1`" and "`valid_coef=0.0`" in rows[2].split(" | ")[3]
+    chosen = next(line for line in lines if "(chosen)" in line)
+    assert chosen.startswith(f"| **{selection['chosen']}** (chosen) | ")
+    assert chosen.endswith(f" | {selection['candidates'][selection['chosen']]['food_mean']:.1f} |")
+    other = tmp_path / "other.pt"
+    other.write_bytes(b"not the model")
+    refused = card("--model", str(other))
+    assert refused.returncode == 1 and f"{other} is not {run_dir / 'model.pt'}" in refused.stderr
+    page = tmp_path / "card.md"
+    page.write_text("# A card\n\n<!-- card:begin (scripts/model_card.py) -->\n<!-- card:end -->\n\nBelow.\n")
+    assert card("--check", str(page)).returncode == 1
+    assert card("--write", str(page)).returncode == 0 and card("--check", str(page)).returncode == 0
+    assert page.read_text().endswith("<!-- card:end -->\n\nBelow.\n") and done.stdout.strip() in page.read_text()
+
+
 def test_a_recipe_runs_every_stage_then_chooses_on_validation_and_resumes_after_a_kill(tmp_path):
     whole = tmp_path / "whole"
     lines = run(whole)
@@ -68,6 +102,7 @@ def test_a_recipe_runs_every_stage_then_chooses_on_validation_and_resumes_after_
     for name in [*SMOKE.candidates, selection["chosen"] + "-channel-empty"]:
         records = [json.loads(line) for line in (whole / "validation" / name / "episodes.jsonl").open()]
         assert sorted((r["agents"], r["seed"]) for r in records) == [(2, first_seed), (3, first_seed)]
+    check_model_card(whole, selection, tmp_path)
 
     # killed in the second stage, after its first episode set (its checkpoint is written)
     parts = tmp_path / "parts"

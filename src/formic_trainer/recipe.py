@@ -305,7 +305,7 @@ def _progress(checkpoint: Path) -> dict:
     return {"episode": progress["episode"], "cpu_seconds": progress.get("cpu_seconds", progress["seconds"])}
 
 
-def _held_identity(held: dict) -> str:
+def held_identity(held: dict) -> str:
     """A claim's identity; claims written before identities existed hold the recipe's text."""
     if "identity" in held:
         return held["identity"]
@@ -340,7 +340,7 @@ class _Run:
         if held is None:
             _write_json(claim, {"recipe": str(recipe.source), "seed": seed, "switch": recipe.switch,
                                 "scale": recipe.scale, "identity": recipe.identity, "text": recipe.text})
-        elif (held["seed"], _held_identity(held)) != (seed, recipe.identity):
+        elif (held["seed"], held_identity(held)) != (seed, recipe.identity):
             raise RecipeError(f"{run_dir} holds a run of another recipe, switch, scale or seed ({claim}): "
                               "use a new --run-dir")
 
