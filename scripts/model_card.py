@@ -30,7 +30,11 @@ from formic_eval.matrix import file_digest  # noqa: E402
 from formic_trainer.config import PRESETS  # noqa: E402
 from formic_trainer.recipe import held_identity  # noqa: E402
 
-BEGIN, END = "<!-- card:begin (scripts/model_card.py) -->", "<!-- card:end -->"
+
+def markers(run: Path) -> tuple[str, str]:
+    """The block's markers name its run, so that one page can hold the cards of several."""
+    return f"<!-- card:begin (scripts/model_card.py {shown(run)}) -->", f"<!-- card:end {shown(run)} -->"
+
 # settings every stage has its own value of, or that say nothing about what a stage trains
 QUIET = {"seed", "init_weights", "total_episodes"}
 
@@ -133,7 +137,8 @@ def main() -> int:
     if target is None:
         print("\n".join(lines))
         return 0
-    return write_or_check(target, BEGIN, END, "\n".join([BEGIN, *lines, END]), check=args.check is not None,
+    begin, end = markers(args.run)
+    return write_or_check(target, begin, end, "\n".join([begin, *lines, end]), check=args.check is not None,
                           command=f"scripts/model_card.py {args.run}")
 
 

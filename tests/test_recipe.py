@@ -74,10 +74,12 @@ def check_model_card(run_dir: Path, selection: dict, tmp_path: Path) -> None:
     refused = card("--model", str(other))
     assert refused.returncode == 1 and f"{other} is not {run_dir / 'model.pt'}" in refused.stderr
     page = tmp_path / "card.md"
-    page.write_text("# A card\n\n<!-- card:begin (scripts/model_card.py) -->\n<!-- card:end -->\n\nBelow.\n")
+    page.write_text(f"# A card\n\n<!-- card:begin (scripts/model_card.py {run_dir}) -->\n"
+                    f"<!-- card:end {run_dir} -->\n\nBelow.\n")
     assert card("--check", str(page)).returncode == 1
     assert card("--write", str(page)).returncode == 0 and card("--check", str(page)).returncode == 0
-    assert page.read_text().endswith("<!-- card:end -->\n\nBelow.\n") and done.stdout.strip() in page.read_text()
+    assert page.read_text().endswith(f"<!-- card:end {run_dir} -->\n\nBelow.\n")
+    assert done.stdout.strip() in page.read_text()
 
 
 def test_a_recipe_runs_every_stage_then_chooses_on_validation_and_resumes_after_a_kill(tmp_path):

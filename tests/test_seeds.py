@@ -104,3 +104,19 @@ def test_readme_seeds_block_is_current():
     done = subprocess.run([sys.executable, str(script), "--check", str(ROOT / "README.md")],
                           capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
+
+
+def test_every_finished_seed_has_its_current_card_in_seeds_md():
+    """models/training/recipe-paper/SEEDS.md holds scripts/model_card.py's block for every seed
+    that has finished (its selection.json), each as the run folder now says."""
+    import re
+
+    page = ROOT / "models" / "training" / "recipe-paper" / "SEEDS.md"
+    carded = re.findall(r"<!-- card:begin \(scripts/model_card.py (\S+)\) -->", page.read_text())
+    finished = sorted(p.parent.relative_to(ROOT).as_posix()
+                      for p in (ROOT / "models" / "training" / "recipe-paper").glob("seed*/selection.json"))
+    assert sorted(carded) == finished
+    for run in carded:
+        done = subprocess.run([sys.executable, str(ROOT / "scripts" / "model_card.py"), run, "--check", str(page)],
+                              capture_output=True, text=True, timeout=120, cwd=ROOT)
+        assert done.returncode == 0, done.stderr
