@@ -25,7 +25,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
 from formic_agent.checkpoint import load_network, read_checkpoint  # noqa: E402
-from formic_eval.markdown_block import write_or_check  # noqa: E402
+from formic_eval.markdown_block import add_block_options, publish  # noqa: E402
 from formic_eval.matrix import file_digest  # noqa: E402
 from formic_trainer.config import PRESETS  # noqa: E402
 from formic_trainer.recipe import held_identity  # noqa: E402
@@ -128,18 +128,10 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("run", type=Path, help="the formic train --recipe folder")
     parser.add_argument("--model", type=Path, help="the shipped copy of the run's model.pt")
-    action = parser.add_mutually_exclusive_group()
-    action.add_argument("--write", type=Path, metavar="CARD", help="replace the card's block in this file")
-    action.add_argument("--check", type=Path, metavar="CARD", help="exit 1 if this card's block is stale")
+    add_block_options(parser, "card")
     args = parser.parse_args()
     lines = card_block(args.run, args.model)
-    target = args.write or args.check
-    if target is None:
-        print("\n".join(lines))
-        return 0
-    begin, end = markers(args.run)
-    return write_or_check(target, begin, end, "\n".join([begin, *lines, end]), check=args.check is not None,
-                          command=f"scripts/model_card.py {args.run}")
+    return publish(lines, *markers(args.run), args, f"scripts/model_card.py {args.run}")
 
 
 if __name__ == "__main__":

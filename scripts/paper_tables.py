@@ -24,7 +24,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
-from formic_eval.markdown_block import write_or_check  # noqa: E402
+from formic_eval.markdown_block import add_block_options, publish  # noqa: E402
 from formic_eval.paper import PAPER_TEAMS  # noqa: E402
 from formic_eval.tables import REFERENCE, ROWS, relative_performance, seed_noise  # noqa: E402
 
@@ -74,20 +74,13 @@ def main() -> int:
                         help="the folder of the rows' evaluation folders")
     parser.add_argument("--seeds", nargs="*", type=Path, default=sorted(ROOT.glob("eval/recipe-paper/seed*")),
                         help="eval folders of the unchanged recipe's seeds (the noise scale)")
-    action = parser.add_mutually_exclusive_group()
-    action.add_argument("--write", type=Path, metavar="README", help="replace the tables block in this file")
-    action.add_argument("--check", type=Path, metavar="README", help="exit 1 if this file's tables block is stale")
+    add_block_options(parser, "tables")
     args = parser.parse_args()
     try:
         lines = tables(args.root, args.seeds)
     except ValueError as exc:
         sys.exit(f"paper_tables: {exc}")
-    target = args.write or args.check
-    if target is None:
-        print("\n".join(lines))
-        return 0
-    return write_or_check(target, BEGIN, END, "\n".join([BEGIN, *lines, END]), check=args.check is not None,
-                          command="scripts/paper_tables.py")
+    return publish(lines, BEGIN, END, args, "scripts/paper_tables.py")
 
 
 if __name__ == "__main__":

@@ -23,7 +23,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
-from formic_eval.markdown_block import write_or_check  # noqa: E402
+from formic_eval.markdown_block import add_block_options, publish  # noqa: E402
 from formic_eval.matrix import file_digest  # noqa: E402
 from formic_eval.paired import PairedDifference, compare, layout_key  # noqa: E402
 from formic_eval.paper import (FIG5_SETTINGS, PAPER_SIZE, PAPER_STEPS, PAPER_TEAMS, RIVALS,  # noqa: E402
@@ -175,8 +175,8 @@ def paper_ratio_line(cells: list[dict]) -> list[str]:
              "|---|" + "---|" * len(PAPER_TEAMS)] + lines)
 
 
-def block(model_eval: Path, baselines_eval: Path, model_file: Path, figure: Path, draw: bool) -> str:
-    """The results block; ``draw``: (re)draw its figure too."""
+def block(model_eval: Path, baselines_eval: Path, model_file: Path, figure: Path, draw: bool) -> list[str]:
+    """The results block's lines; ``draw``: (re)draw its figure too."""
     model = [r for r in folder_episodes(model_eval) if r["algorithm"] == "formic"]
     baselines = [r for r in folder_episodes(baselines_eval) if r["algorithm"] != "formic"]
     digests = sorted({r["model"] for r in model})
@@ -188,8 +188,7 @@ def block(model_eval: Path, baselines_eval: Path, model_file: Path, figure: Path
         plot_food_vs_team([c for c in cells if c["variant"] == ""], figure)
     rel = lambda p: Path(p).resolve().relative_to(ROOT).as_posix()  # noqa: E731
     small_worlds = small_world_tables(model, baselines)
-    parts = [
-        BEGIN,
+    return [
         f"ForMIC here is `{rel(model_file)}` (digest `{digests[0]}`), its episodes in `{rel(model_eval)}/`; "
         f"every other algorithm's in `{rel(baselines_eval)}/`, on the same stored scenarios. Food deposited in "
         f"{PAPER_STEPS} steps on {PAPER_SIZE}x{PAPER_SIZE} worlds, mean ± std over the n scenarios; "
@@ -210,9 +209,7 @@ def block(model_eval: Path, baselines_eval: Path, model_file: Path, figure: Path
         "",
         *paired_table(model, baselines),
         *([""] + small_worlds if small_worlds else []),
-        END,
     ]
-    return "\n".join(parts)
 
 
 def main() -> int:
@@ -221,17 +218,10 @@ def main() -> int:
     parser.add_argument("--baselines-eval", type=Path, default=ROOT / "eval" / "readme")
     parser.add_argument("--model", type=Path, default=ROOT / "models" / "formic_paper.pt")
     parser.add_argument("--figure", type=Path, default=ROOT / "eval" / "formic_paper" / "readme_food_vs_team.png")
-    action = parser.add_mutually_exclusive_group()
-    action.add_argument("--write", type=Path, metavar="README", help="replace the block in this file")
-    action.add_argument("--check", type=Path, metavar="README", help="exit 1 if this file's block is stale")
+    add_block_options(parser, "results")
     args = parser.parse_args()
-    new_block = block(args.model_eval, args.baselines_eval, args.model, args.figure, draw=args.check is None)
-    target = args.write or args.check
-    if target is None:
-        print(new_block)
-        return 0
-    return write_or_check(target, BEGIN, END, new_block, check=args.check is not None,
-                          command="scripts/readme_results.py")
+    lines = block(args.model_eval, args.baselines_eval, args.model, args.figure, draw=args.check is None)
+    return publish(lines, BEGIN, END, args, "scripts/readme_results.py")
 
 
 if __name__ == "__main__":

@@ -28,7 +28,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
-from formic_eval.markdown_block import write_or_check  # noqa: E402
+from formic_eval.markdown_block import add_block_options, publish  # noqa: E402
 from formic_eval.paired import compare  # noqa: E402
 from formic_eval.paper import (FIG5_SETTINGS, PAPER_SIZE, PAPER_STEPS, PAPER_TEAMS, RIVALS, paper_food,  # noqa: E402
                                setting_title, test_set_episodes)
@@ -112,9 +112,7 @@ def main() -> int:
     parser.add_argument("--evals", nargs="*", type=Path, default=[],
                         help="each seed's eval_model.sh folder, same order")
     parser.add_argument("--baselines", type=Path, default=ROOT / "eval" / "readme", help="the baselines' eval folder")
-    action = parser.add_mutually_exclusive_group()
-    action.add_argument("--write", type=Path, metavar="README", help="replace the seeds block in this file")
-    action.add_argument("--check", type=Path, metavar="README", help="exit 1 if this file's seeds block is stale")
+    add_block_options(parser, "seeds")
     args = parser.parse_args()
     if args.runs is None:
         args.runs = sorted(run for run in RUNS.glob("seed*") if (run / "selection.json").is_file())
@@ -125,12 +123,7 @@ def main() -> int:
         lines = tables(args.runs, args.evals, args.baselines)
     except ValueError as exc:
         sys.exit(f"seeds_table: {exc}")
-    target = args.write or args.check
-    if target is None:
-        print("\n".join(lines))
-        return 0
-    return write_or_check(target, BEGIN, END, "\n".join([BEGIN, *lines, END]), check=args.check is not None,
-                          command="scripts/seeds_table.py")
+    return publish(lines, BEGIN, END, args, "scripts/seeds_table.py")
 
 
 if __name__ == "__main__":

@@ -27,3 +27,21 @@ def write_or_check(path: Path, begin: str, end: str, block: str, check: bool, co
         return 0
     path.write_text(updated)
     return 0
+
+
+def add_block_options(parser, what: str) -> None:
+    """``--write FILE`` and ``--check FILE`` for a script that builds ``what`` (one of them at most)."""
+    action = parser.add_mutually_exclusive_group()
+    action.add_argument("--write", type=Path, metavar="FILE", help=f"replace the {what} block in this file")
+    action.add_argument("--check", type=Path, metavar="FILE", help=f"exit 1 if this file's {what} block is stale")
+
+
+def publish(lines: list[str], begin: str, end: str, args, command: str) -> int:
+    """Print the block's lines, or (``args.write``/``args.check``) replace or check it between
+    its markers in that file."""
+    target = args.write or args.check
+    if target is None:
+        print("\n".join(lines))
+        return 0
+    return write_or_check(target, begin, end, "\n".join([begin, *lines, end]), check=args.check is not None,
+                          command=command)
