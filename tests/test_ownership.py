@@ -247,11 +247,14 @@ def test_a_claim_from_a_node_the_run_did_not_start_is_refused(tmp_path):
     try:
         outsider = spawner.python("outsider", "-c", OUTSIDER, str(spawner.domain_id), limit_s=120)
         outsider.wait_for_text("claimed", timeout=60)
-        run = spawner.formic("run", "run", *WORLD[:-3], "--policy", "csaf11", "--json",
+        # 400 steps: the world lives long enough to hear the claim even when discovery is slow (a
+        # claim that arrives after step 0 is judged the same way; CI once ended a 40-step run first)
+        world = [*WORLD[:WORLD.index("--steps") + 1], "400", "--deadline-ms", "5000"]
+        run = spawner.formic("run", "run", *world, "--policy", "csaf11", "--json",
                              "--domain-id", str(spawner.domain_id), limit_s=120)
         assert run.wait() == 0, run.output()[-3000:]
         summary = run.json_line()
-        assert (summary["food"], summary["state_digest"]) == sim_digest(40)
+        assert (summary["food"], summary["state_digest"]) == sim_digest(400)
         why = "/formic/early_bird claims agents 0-7, which this run's own drivers (/formic/agent_host_0) drive"
         assert f"claim refused: {why}" in run.output()
         assert outsider.wait(timeout=30) == 0 and why in outsider.output()

@@ -192,6 +192,9 @@ class WorldNode(Node):
         deadline = time.monotonic() + CLAIMS_WAIT_S
         while self.ownership.unheard_claimants() and time.monotonic() < deadline:
             executor.spin_once(timeout_sec=0.05)
+        if unheard := self.ownership.unheard_claimants():
+            self.get_logger().warning(f"the claims of {', '.join(sorted(unheard))} have not arrived after "
+                                      f"{CLAIMS_WAIT_S:g} s; starting anyway (a late claim is judged when it arrives)")
         self.ownership.expect_recorders(max(self.options.recorders, recorders_present(self)))  # drivers wait too
         deadline = time.monotonic() + self.options.startup_timeout_s
         while missing := [n for n in self.options.require_subscribers if publishers[n].get_subscription_count() == 0]:
