@@ -12,6 +12,7 @@ start-up included). Prints a markdown table.
 
 from __future__ import annotations
 
+import argparse
 import json
 import platform
 import subprocess
@@ -67,4 +68,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    argparse.ArgumentParser(description=__doc__.splitlines()[0]).parse_args()  # --help, and no stray arguments
     main()

@@ -2,8 +2,8 @@
 """The facts of a recipe-built model, read from its run folder: the block of its model card.
 
     .venv/bin/python scripts/model_card.py models/training/recipe-paper/seed2                 # print the block
-    .venv/bin/python scripts/model_card.py RUN --model models/formic_paper.pt --write models/formic_paper.md
-    .venv/bin/python scripts/model_card.py RUN --model models/formic_paper.pt --check models/formic_paper.md
+    .venv/bin/python scripts/model_card.py RUN --model models/formic_recipe.pt --write models/formic_recipe.md
+    .venv/bin/python scripts/model_card.py RUN --model models/formic_recipe.pt --check models/formic_recipe.md
 
 RUN is a ``formic train --recipe`` folder: ``recipe.json`` (the recipe, its seed, switch and
 scale, and the stages it trained), each stage's ``latest.pt`` (the settings it trained with and

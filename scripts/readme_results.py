@@ -214,10 +214,11 @@ def block(model_eval: Path, baselines_eval: Path, model_file: Path, figure: Path
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--model-eval", type=Path, default=ROOT / "eval" / "formic_paper")
+    parser.add_argument("--model-eval", type=Path, default=ROOT / "eval" / "recipe-paper" / "seed3")
     parser.add_argument("--baselines-eval", type=Path, default=ROOT / "eval" / "readme")
-    parser.add_argument("--model", type=Path, default=ROOT / "models" / "formic_paper.pt")
-    parser.add_argument("--figure", type=Path, default=ROOT / "eval" / "formic_paper" / "readme_food_vs_team.png")
+    parser.add_argument("--model", type=Path, default=ROOT / "models" / "formic_recipe.pt")
+    parser.add_argument("--figure", type=Path,
+                        default=ROOT / "eval" / "recipe-paper" / "seed3" / "readme_food_vs_team.png")
     add_block_options(parser, "results")
     args = parser.parse_args()
     lines = block(args.model_eval, args.baselines_eval, args.model, args.figure, draw=args.check is None)

@@ -147,7 +147,7 @@ def test_action_inbox_validates_every_entry():
 # ------------------------------------------------------------------------ real processes
 @pytest.mark.parametrize("transport,policy,model", [
     ("batched", "random", None), ("per-agent", "random:0-3,csaf11:4-7", None),
-    ("per-agent", "formic", None),  # the default, formic_paper.pt: its LSTM reads its own action feedback
+    ("per-agent", "formic", None),  # the default, formic_recipe.pt: its LSTM reads its own action feedback
     ("batched", "formic", str(ROOT / "models" / "formic_cpu.pt")),  # the odometry model: nest inputs
 ])
 def test_run_across_processes_equals_sim(spawner, transport, policy, model):

@@ -120,3 +120,23 @@ def test_every_finished_seed_has_its_current_card_in_seeds_md():
         done = subprocess.run([sys.executable, str(ROOT / "scripts" / "model_card.py"), run, "--check", str(page)],
                               capture_output=True, text=True, timeout=120, cwd=ROOT)
         assert done.returncode == 0, done.stderr
+
+
+def test_the_default_model_is_the_seed_validation_chooses_and_its_card_is_current():
+    """models/formic_recipe.pt, the default `formic` policy, is byte for byte the model.pt of the
+    finished seed with the highest validation food, and models/formic_recipe.md holds that run's
+    current card block."""
+    from formic_runtime.registry import DEFAULT_MODEL
+
+    runs = ROOT / "models" / "training" / "recipe-paper"
+    finished = sorted(p.parent for p in runs.glob("seed*/selection.json"))
+    chosen = shipped_seed([SeedValidation.load(run) for run in finished])
+    shipped = ROOT / "models" / "formic_recipe.pt"
+    assert DEFAULT_MODEL == shipped
+    assert shipped.read_bytes() == (runs / chosen.name / "model.pt").read_bytes(), chosen.name
+    card = ROOT / "models" / "formic_recipe.md"
+    run = (runs / chosen.name).relative_to(ROOT).as_posix()
+    done = subprocess.run([sys.executable, str(ROOT / "scripts" / "model_card.py"), run, "--model",
+                           "models/formic_recipe.pt", "--check", str(card)],
+                          capture_output=True, text=True, timeout=120, cwd=ROOT)
+    assert done.returncode == 0, done.stderr

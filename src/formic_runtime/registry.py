@@ -28,7 +28,8 @@ _POLICIES: dict[str, tuple[str, str, dict[str, Any]]] = {
     "planner": ("formic_baselines.planner", "CentralizedPlanner", {}),
 }
 POLICY_NAMES = tuple(_POLICIES)
-DEFAULT_MODEL = Path(__file__).resolve().parents[2] / "models" / "formic_paper.pt"  # the paper observation's model (issue 11)
+# The recipe's seed that validation chooses (issue 25; tests/test_seeds.py checks the copy).
+DEFAULT_MODEL = Path(__file__).resolve().parents[2] / "models" / "formic_recipe.pt"
 
 # The world settings (WorldConfig fields) a policy's run needs, over the scenario's own: the
 # reference variants of C-SAF run as the authors' code did (docs/baselines.md).
