@@ -16,6 +16,7 @@ from formic_cli.main import cli
 from formic_eval import aggregate, food_stats
 from formic_eval.matrix import PolicyOptions, Setting, generate_matrix, layout_seed, load_matrix, plan_tasks
 from formic_eval.paper import markdown_report, paper_food
+from formic_eval.plots import plot_food_vs_team, published_line
 from formic_eval.runner import EpisodeLog, evaluate, run_tasks
 from formic_world import Scenario, WorldConfig
 from formic_world.scenario_sets import generate_set
@@ -340,6 +341,21 @@ def test_report_sets_our_numbers_beside_the_papers():
     report = markdown_report(cells, run)
     assert "| infinite, 0% obstacles | ForMIC | 16 | 250.0 ± 14.1 | 249 | 1.00 | 0.89 | 0.90 |" in report
     assert "| infinite, 0% obstacles | centralized | 16 | 280.0 ± 14.1 | 276 | 1.01 | 1.00 | 1.00 |" in report
+
+
+def test_the_food_figure_draws_the_papers_formic_beside_ours(tmp_path):
+    """Fig. 5's figure: the paper's ForMIC where it published one (128x128, 1024 steps), nothing
+    elsewhere; the figure draws with and without it."""
+    def cell(agents, size=128, env="infinite"):
+        return {"algorithm": "formic", "variant": "", "size": size, "agents": agents, "obstacles": 0.0, "env": env,
+                "steps": 1024, "food_mean": 100.0 + agents, "food_std": 5.0}
+
+    assert published_line([cell(16), cell(32), cell(128)]) == [(16, 249.0), (32, 403.0), (128, 862.0)]
+    assert published_line([cell(16, env="wipeout")]) == [(16, 220.0)]
+    assert published_line([cell(16, size=64)]) == []
+    for cells in ([cell(16), cell(32), cell(16, env="wipeout")], [cell(16, size=64), cell(32, size=64)]):
+        png = plot_food_vs_team(cells, tmp_path / f"s{cells[0]['size']}.png")
+        assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
 def test_a_model_with_another_field_of_view_sees_the_same_layout_through_its_window(tmp_path):

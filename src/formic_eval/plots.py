@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from .paper import algorithm_label as _label
+from .paper import paper_food
 
 COLOURS = {"formic": "C3", "planner": "C0", "csaf": "C1", "csaf11": "C2", "cardinality": "C4", "random": "C7",
            "csaf-ref": "C5", "csaf11-ref": "C6"}
@@ -59,6 +60,12 @@ def plot_all(cells: list[dict], out: Path) -> list[str]:
     return [str(p) for p in paths]
 
 
+def published_line(points: list[dict]) -> list[tuple[int, float]]:
+    """(team size, the paper's food) for the cells of one line that have a published value: drawn
+    beside ours so that the figure, like the tables, shows the paper."""
+    return [(c["agents"], food) for c in points if (food := paper_food(c)) is not None]
+
+
 def plot_food_vs_team(cells: list[dict], path: Path) -> Path:
     """Fig. 5: food deposited versus team size, error bars = std over scenarios."""
     plt = _pyplot()
@@ -72,6 +79,10 @@ def plot_food_vs_team(cells: list[dict], path: Path) -> Path:
             label = _label(pts[0]) + (" (wipeouts)" if env == "wipeout" else "")
             ax.errorbar([c["agents"] for c in pts], [c["food_mean"] for c in pts], yerr=[c["food_std"] for c in pts],
                         capsize=3, label=label, **_style(line, env))
+            published = published_line(pts)
+            if line == ("formic", "") and published:
+                ax.plot(*zip(*published), color="k", marker="x", markersize=8, zorder=3,
+                        linestyle=_style(line, env)["linestyle"], label="ForMIC, the paper's" + label[len("ForMIC"):])
         _team_axis(ax, teams)
         ax.set_title(f"{panel[0]} resources, {panel[1] * 100:g}% obstacles")
         ax.set_ylabel("food deposited")
