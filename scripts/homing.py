@@ -14,7 +14,6 @@ the agents that never come back: they end only when a trip was short.
 
 from __future__ import annotations
 
-import dataclasses
 import json
 from pathlib import Path
 
@@ -22,7 +21,7 @@ import click
 import numpy as np
 
 from formic_cli.options import probe_options, stored_teams
-from formic_runtime.episode import run_episode
+from formic_eval.probes import mean_over_scenarios
 from formic_runtime.threads import configure_threads
 
 
@@ -67,24 +66,15 @@ class TripCounter:
 @click.command()
 @probe_options(policies="formic", teams="16,128")
 @click.option("--steps", default=1024, show_default=True)
-@click.option("--channel-empty", is_flag=True,
-              help="Agents read an empty pheromone channel (formic eval --no-pheromones).")
 @click.option("--out", type=click.Path(dir_okay=False), help="Also write the table here as JSON.")
-def main(policies, model, scenario_dir, size, teams, count, steps, channel_empty, out) -> None:
+def main(policies, model, scenario_dir, size, teams, count, channel_empty, steps, out) -> None:
     """Per model and team size: deliveries, trip lengths and loads never delivered."""
     configure_threads()
     results = []
     for team, scenarios in stored_teams(scenario_dir, size, teams, count):
         for policy in policies.split(","):
-            rows = []
-            for scenario in scenarios:
-                if channel_empty:
-                    scenario = dataclasses.replace(scenario, config=scenario.config.replace(pheromones_visible=False))
-                counter = TripCounter()
-                episode = run_episode(scenario, policy, model=model, steps=steps, on_step=counter)
-                rows.append({"food": episode.food, **counter.table()})
             row = {"policy": policy, "agents": team, "scenarios": len(scenarios),
-                   **{key: float(np.nanmean([r[key] for r in rows])) for key in rows[0]}}
+                   **mean_over_scenarios(scenarios, policy, model, steps, TripCounter, channel_empty)}
             results.append(row)
             click.echo(f"{policy:8s} {team:4d} agents  food {row['food']:6.1f}  deliveries/agent "
                        f"{row['deliveries_per_agent']:4.1f}  trips: loaded {row['loaded_trip']:5.1f}, empty "

@@ -22,7 +22,7 @@ import click
 import numpy as np
 
 from formic_cli.options import probe_options, stored_teams
-from formic_runtime.episode import run_episode
+from formic_eval.probes import mean_over_scenarios
 from formic_runtime.threads import configure_threads
 from formic_world.geometry import nest_centre
 
@@ -74,19 +74,14 @@ class CrowdCounter:
 @click.option("--steps", default=1024, show_default=True)
 @click.option("--radius", default=8, show_default=True, help="Cells from the nest centre that count as its crowd.")
 @click.option("--out", type=click.Path(dir_okay=False), help="Also write the table here as JSON.")
-def main(policies, model, scenario_dir, size, teams, count, steps, radius, out) -> None:
+def main(policies, model, scenario_dir, size, teams, count, channel_empty, steps, radius, out) -> None:
     """Mean per step: carrying agents crowding the nest, agents queued at it, docks held."""
     configure_threads()
     results = []
     for team, scenarios in stored_teams(scenario_dir, size, teams, count):
         for policy in policies.split(","):
-            rows = []
-            for scenario in scenarios:
-                counter = CrowdCounter(radius)
-                episode = run_episode(scenario, policy, model=model, steps=steps, on_step=counter)
-                rows.append({"food": episode.food, **counter.table()})
             row = {"policy": policy, "agents": team, "scenarios": len(scenarios),
-                   **{key: float(np.mean([r[key] for r in rows])) for key in rows[0]}}
+                   **mean_over_scenarios(scenarios, policy, model, steps, lambda: CrowdCounter(radius), channel_empty)}
             results.append(row)
             click.echo(f"{policy:8s} {team:4d} agents  food {row['food']:6.1f}  crowd {row['crowd']:5.1f}  "
                        f"in cache queues {row['in_cache_queues']:4.1f}  docks held {row['docks_held']:.2f}  "

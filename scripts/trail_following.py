@@ -25,7 +25,7 @@ import click
 import numpy as np
 
 from formic_cli.options import probe_options, stored_teams
-from formic_runtime.episode import run_episode
+from formic_eval.probes import play
 from formic_runtime.threads import configure_threads
 
 KINDS = ("up", "down", "off", "level")
@@ -81,7 +81,7 @@ class TrailCounter:
 @click.option("--steps", type=int, help="Steps per episode (default: the scenario's).")
 @click.option("--threshold", default=0.05, show_default=True, help="Pheromone that makes a cell part of a trail.")
 @click.option("--out", type=click.Path(dir_okay=False), help="Also write the table here as JSON.")
-def main(policies, model, scenario_dir, size, teams, count, steps, threshold, out) -> None:
+def main(policies, model, scenario_dir, size, teams, count, channel_empty, steps, threshold, out) -> None:
     """Share of moves up / down the pheromone gradient on trails, loaded and empty agents."""
     configure_threads()
     results = []
@@ -91,7 +91,7 @@ def main(policies, model, scenario_dir, size, teams, count, steps, threshold, ou
             food = []
             for scenario in scenarios:
                 counter.before = None
-                episode = run_episode(scenario, policy, model=model, steps=steps, on_step=counter)
+                episode = play(scenario, policy, model, steps, counter, channel_empty)
                 food.append(episode.food)
             row = {"policy": policy, "agents": team, "scenarios": len(scenarios), "food": float(np.mean(food)),
                    **counter.table()}

@@ -174,8 +174,8 @@ hosts_network_option = click.option(
 
 def probe_options(policies: str, teams: str):
     """The options of the measuring scripts (``scripts/nest_crowding.py``,
-    ``scripts/trail_following.py``): which policies, the model, and the first stored scenarios
-    per team size (:func:`stored_teams`)."""
+    ``scripts/trail_following.py``, ``scripts/homing.py``): which policies, the model, the first
+    stored scenarios per team size (:func:`stored_teams`) and whether the pheromone channel is empty."""
     return option_group(
         click.option("--policies", default=policies, show_default=True),
         click.option("--model", type=click.Path(exists=True, dir_okay=False), help="Checkpoint of the formic policy."),
@@ -184,6 +184,8 @@ def probe_options(policies: str, teams: str):
         click.option("--size", default=128, show_default=True),
         click.option("--teams", default=teams, show_default=True),
         click.option("--count", default=4, show_default=True, help="Scenarios per team size (the first, by name)."),
+        click.option("--channel-empty", is_flag=True,
+                     help="Agents read an empty pheromone channel (as formic eval --no-pheromones tests them)."),
     )
 
 

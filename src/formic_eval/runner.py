@@ -98,12 +98,14 @@ def run_task(task: Task) -> dict:
     from formic_runtime.team import Team
     from formic_world import Scenario
 
+    from .probes import with_channel_empty
+
     stored = task.scenario
     setting = stored.setting
     try:
         scenario = Scenario.load(stored.path)
         if task.no_pheromones:
-            scenario = dataclasses.replace(scenario, config=scenario.config.replace(pheromones_visible=False))
+            scenario = with_channel_empty(scenario)
         if task.pheromone_variant != "standard":
             scenario = dataclasses.replace(scenario, config=scenario.config.replace(
                 pheromone_variant=task.pheromone_variant))
