@@ -141,8 +141,7 @@ def markdown_report(cells: list[dict], run: dict) -> str:
         "# ForMIC evaluation",
         "",
         f"Algorithms: {', '.join(run['algorithms'])}. Scenarios: {run['scenarios']}. "
-        f"Episodes: {run['episodes']['total']} ({run['episodes']['computed']} computed in this call, "
-        f"{run['episodes']['reused']} reused).",
+        f"Episodes: {run['episodes']['total']}.",  # not how many this call ran: the report is the results'
         "",
         "Food = total food deposited at the nest (mean ± std over scenarios). Time = the whole "
         "team's decision time per step on this machine (with "
