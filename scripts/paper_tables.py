@@ -46,7 +46,9 @@ def shown(path: Path) -> str:
 def tables(root: Path, seeds: list[Path]) -> list[str]:
     lines = [f"Relative to `{shown(root / REFERENCE)}` on the same scenarios: per cell (infinite resources with and "
              "without 3 wipeouts, 0% and 5% obstacles, 16/32/64/128 agents; 128x128, 1024 steps) the row's food "
-             "over the reference's, then the mean ± sample std over the cells, as the paper computed Table I."]
+             "over the reference's, then the mean ± sample std over the cells, as the paper computed Table I; "
+             "and the cells where the row is behind the reference, level with it or ahead, by the 95% interval "
+             "of the paired food difference on the same scenarios."]
     noise = seed_noise(seeds)
     if noise is not None:
         lines.append("")
@@ -54,17 +56,20 @@ def tables(root: Path, seeds: list[Path]) -> list[str]:
                      f"{noise.cells} seed-cells): ± {noise.std:.1f}%.")
     for table, title in TITLES.items():
         lines += ["", f"#### {title}", "",
-                  "| row | ours | paper | " + " | ".join(f"{n} agents" for n in PAPER_TEAMS) + " | cells |",
-                  "|---|---|---|" + "---|" * (len(PAPER_TEAMS) + 1)]
+                  "| row | ours | paper | " + " | ".join(f"{n} agents" for n in PAPER_TEAMS)
+                  + " | cells | behind / level / ahead |",
+                  "|---|---|---|" + "---|" * (len(PAPER_TEAMS) + 2)]
         for row in (r for r in ROWS if r.table == table):
             found = relative_performance(root, row)
             paper = f"{row.paper[0]:.2f}% ± {row.paper[1]:.2f}%"  # as published
             if found is None:
                 lines.append(f"| {row.label} | not evaluated yet ({shown(root / row.switch)}) | {paper} | "
-                             + " | ".join("–" for _ in PAPER_TEAMS) + " | 0 |")
+                             + " | ".join("–" for _ in PAPER_TEAMS) + " | 0 | – |")
                 continue
             teams = " | ".join(f"{found.by_team[n]:.0f}%" if n in found.by_team else "–" for n in PAPER_TEAMS)
-            lines.append(f"| {row.label} | {percent(found.mean, found.std)} | {paper} | {teams} | {found.cells} |")
+            verdicts = " / ".join(map(str, found.verdicts))
+            lines.append(f"| {row.label} | {percent(found.mean, found.std)} | {paper} | {teams} | {found.cells} "
+                         f"| {verdicts} |")
     return lines
 
 

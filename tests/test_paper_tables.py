@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from formic_eval.tables import ROWS, Relative, cell_ratios, model_episodes
+from formic_eval.tables import ROWS, Relative, cell_ratios, cell_verdicts, model_episodes
 
 ROOT = Path(__file__).resolve().parents[1]
 CELLS = [(env, obstacles, n) for env in ("infinite", "wipeout") for obstacles in (0.0, 0.05) for n in (16, 32, 64, 128)]
@@ -61,6 +61,16 @@ def test_relative_performance_is_per_cell_on_shared_scenarios_then_mean_and_std_
     assert cell_ratios(row + extra, reference) == ratios
 
 
+def test_a_cell_is_behind_level_or_ahead_by_its_paired_interval():
+    scenarios = ("a", "b", "c")
+    reference = episodes(lambda env, o, n: 100.0, scenarios=scenarios)
+    # per scenario a, b, c: the 95% interval of -20 -21 -19 is -20 ± 2.5 (behind), of -10 +10 0 spans
+    # zero (level), of +10 +11 +9 is ahead; no difference at 128 agents is level
+    shift = {16: (-20.0, -21.0, -19.0), 32: (-10.0, 10.0, 0.0), 64: (10.0, 11.0, 9.0), 128: (0.0, 0.0, 0.0)}
+    row = [dict(r, food=r["food"] + shift[r["agents"]][scenarios.index(r["scenario"])]) for r in reference]
+    assert cell_verdicts(row, reference) == (4, 8, 4)  # 4 cells per team size
+
+
 def test_the_script_prints_each_table_beside_the_paper_and_names_rows_not_yet_evaluated(tmp_path):
     root = tmp_path / "tables"
     write(root / "reference", episodes(lambda env, o, n: 100.0),
@@ -75,14 +85,17 @@ def test_the_script_prints_each_table_beside_the_paper_and_names_rows_not_yet_ev
     done = run_tables(str(root), "--seeds", *map(str, seeds))
     assert done.returncode == 0, done.stderr
     lines = done.stdout.splitlines()
-    assert "| Training without pheromone curriculum | 70.0% ± 10.3% | 75.89% ± 7.00% | 70% | 70% | 70% | 70% | 16 |" \
+    assert "| Training without pheromone curriculum | 70.0% ± 10.3% | 75.89% ± 7.00% | 70% | 70% | 70% | 70% | 16 " \
+        "| 16 / 0 / 0 |" \
         in lines
     empty = ("| Testing without pheromones (empty channel) | 50.0% ± 0.0% | 65.89% ± 8.73% "
-             "| 50% | 50% | 50% | 50% | 16 |")
+             "| 50% | 50% | 50% | 50% | 16 | 16 / 0 / 0 |")
     assert empty in lines
-    assert "| FOV 5 | 60.0% ± 44.3% | 59.61% ± 11.00% | 16% | 32% | 64% | 128% | 16 |" in lines, done.stdout
+    # below the reference's 100 food at 16-64 agents, above it at 128
+    fov5 = "| FOV 5 | 60.0% ± 44.3% | 59.61% ± 11.00% | 16% | 32% | 64% | 128% | 16 | 12 / 0 / 4 |"
+    assert fov5 in lines, done.stdout
     missing = next(line for line in lines if line.startswith("| Training without invalid action pruning |"))
-    assert f"not evaluated yet ({root / 'no-pruning'})" in missing and missing.endswith("| 0 |")
+    assert f"not evaluated yet ({root / 'no-pruning'})" in missing and missing.endswith("| 0 | – |")
     assert "Noise scale of one seed (the unchanged recipe's 2 seeds, each over their mean, 32 seed-cells): ± 10.2%." \
         in lines
     assert [line for line in lines if line.startswith("#### ")] == [

@@ -6,18 +6,22 @@ NAME``), evaluated on the stored test scenarios, in ``ROOT/NAME/episodes.jsonl``
 row's relative performance is its food over the reference's on the same scenarios, per cell of
 the test set "with/without obstacles, with/without wipeouts, all team sizes" (16 cells:
 128x128, 1024 steps, infinite resources with and without 3 wipeouts, 0% and 5% obstacles, teams
-16-128), then the mean and sample standard deviation over the cells.
+16-128), then the mean and sample standard deviation over the cells. Beside that, per cell, the
+paired difference of food on the same scenarios (``paired.compare``, a 95% interval) says whether
+the row is behind the reference, level with it or ahead: the spread over cells mixes real
+differences between cells with each cell's scenario noise, the paired intervals do not.
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping, Sequence
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from .paired import pair_records
+from .paired import compare, pair_records
 from .paper import PAPER_SIZE, PAPER_STEPS, PAPER_TEAMS, test_set_episodes
 from .runner import folder_episodes
 from .seeds import mean_over_seeds
@@ -81,14 +85,30 @@ def cell_ratios(row: Iterable[dict], reference: Iterable[dict]) -> dict[tuple, f
     return ratios
 
 
+def cell_verdicts(row: Iterable[dict], reference: Iterable[dict]) -> tuple[int, int, int]:
+    """How many cells the row is behind the reference in, level with and ahead of: by the 95%
+    interval of the paired food difference on the scenarios both played."""
+    behind = level = ahead = 0
+    for difference in compare(row, reference).values():
+        if difference.high < 0:
+            behind += 1
+        elif difference.low > 0:
+            ahead += 1
+        else:
+            level += 1
+    return behind, level, ahead
+
+
 @dataclass(frozen=True)
 class Relative:
-    """A row's relative performance in %: mean and sample std over its cells, and per team size."""
+    """A row's relative performance in %: mean and sample std over its cells, per team size, and
+    (for a row against the reference) its cells behind / level / ahead by paired intervals."""
 
     mean: float
     std: float
     cells: int
     by_team: dict[int, float]
+    verdicts: tuple[int, int, int] | None = None
 
     @classmethod
     def of(cls, ratios: Mapping[tuple, float]) -> Relative | None:
@@ -104,7 +124,9 @@ class Relative:
 def relative_performance(root: Path, row: TableRow) -> Relative | None:
     """The row's relative performance from ``root`` (None until its run is evaluated)."""
     reference = model_episodes(root / REFERENCE, "")
-    return Relative.of(cell_ratios(model_episodes(root / row.switch, row.variant), reference))
+    episodes = model_episodes(root / row.switch, row.variant)
+    found = Relative.of(cell_ratios(episodes, reference))
+    return None if found is None else dataclasses.replace(found, verdicts=cell_verdicts(episodes, reference))
 
 
 def seed_noise(seed_folders: Sequence[Path]) -> Relative | None:
