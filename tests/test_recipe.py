@@ -17,7 +17,7 @@ from click.testing import CliRunner
 
 from formic_agent.checkpoint import load_network, read_checkpoint
 from formic_cli.main import cli
-from formic_eval.matrix import layout_seed
+from formic_eval.matrix import file_digest, layout_seed
 from formic_trainer.config import load_train_config
 from formic_trainer.recipe import SELECTION_RULE, load_recipe, run_recipe, stage_config, weights_file
 
@@ -82,6 +82,30 @@ def check_model_card(run_dir: Path, selection: dict, tmp_path: Path) -> None:
     assert done.stdout.strip() in page.read_text()
 
 
+def check_stage_validation(run_dir: Path, selection: dict) -> None:
+    """scripts/stage_validation.py on a finished run: the end of every stage on the run's
+    validation scenarios, the candidates' episodes reused (the same food as the choice read),
+    the first stage's end (it has no mean: its latest weights) played into its own folder."""
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, str(ROOT / "scripts" / "stage_validation.py"), str(run_dir)],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    header, *rows = done.stdout.splitlines()
+    assert header.split() == ["stage", "end", "episodes", "food", "2", "3"]
+    assert [row.split()[0] for row in rows] == ["first.latest", "middle.mean", "last.mean"]
+    for row in rows[1:]:
+        name, episodes, food = row.split()[:3]
+        assert (int(episodes), float(food)) == (2, round(selection["candidates"][name]["food_mean"], 1))
+    records = [json.loads(line) for line in (run_dir / "validation" / "first.latest" / "episodes.jsonl").open()]
+    assert sorted(r["agents"] for r in records) == [2, 3]
+    assert {r["model"] for r in records} == {file_digest(run_dir / "first" / "latest.pt")}
+    only = subprocess.run([sys.executable, str(ROOT / "scripts" / "stage_validation.py"), str(run_dir),
+                           "--stages", "nothing"], capture_output=True, text=True, timeout=120)
+    assert only.returncode == 1 and "no started stage among nothing" in only.stderr
+
+
 def test_a_recipe_runs_every_stage_then_chooses_on_validation_and_resumes_after_a_kill(tmp_path):
     whole = tmp_path / "whole"
     lines = run(whole)
@@ -105,6 +129,7 @@ def test_a_recipe_runs_every_stage_then_chooses_on_validation_and_resumes_after_
         records = [json.loads(line) for line in (whole / "validation" / name / "episodes.jsonl").open()]
         assert sorted((r["agents"], r["seed"]) for r in records) == [(2, first_seed), (3, first_seed)]
     check_model_card(whole, selection, tmp_path)
+    check_stage_validation(whole, selection)
 
     # killed in the second stage, after its first episode set (its checkpoint is written)
     parts = tmp_path / "parts"

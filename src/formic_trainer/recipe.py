@@ -409,11 +409,8 @@ class _Run:
     def select(self) -> Path:
         """Play every candidate on the validation scenarios, copy the best to ``model.pt`` and
         play it once more with the pheromone channel empty; ``selection.json`` has it all."""
-        from formic_eval import generate_matrix, settings_grid
-
         v, folder = self.recipe.validation, self.run_dir / "validation"
-        grid = settings_grid([v.size], v.teams, [0.0], ["infinite"], v.steps)
-        matrix = generate_matrix(grid, v.scenarios, v.seed, folder / "scenarios")
+        matrix = validation_matrix(v, folder / "scenarios")
         # a model trained without pheromones is tested without them too (the paper's Table I row)
         blind = not self.trains_with_pheromones()
         scores = {name: self.validate(matrix, weights_file(self.run_dir, name), folder / name, no_pheromones=blind)
@@ -448,20 +445,37 @@ class _Run:
         return seen.pop()
 
     def validate(self, matrix: dict, model: Path, out: Path, no_pheromones: bool = False) -> dict:
-        """``model`` on the validation scenarios (episodes kept in ``out``, reused when there).
-        Their single-threaded episode clock joins the CPU budget."""
-        from formic_eval import PolicyOptions, evaluate
-        from formic_eval.matrix import file_digest
-        from formic_eval.runner import EpisodeLog
-
+        """``model`` on the validation scenarios; their single-threaded episode clock joins the CPU budget."""
         self.echo(f"validation: {model}{' (pheromone channel empty)' if no_pheromones else ''} -> {out}")
-        options = PolicyOptions(model=str(model), model_digest=file_digest(model), no_pheromones=no_pheromones)
-        summary = evaluate(matrix, ["formic"], options, out, workers=1, source=str(out.parent / "scenarios"))
-        if summary["interrupted"]:
-            raise KeyboardInterrupt
-        cells = summary["cells"]
-        self.cpu_seconds += sum(record["wall_s"] for record in EpisodeLog(out / "episodes.jsonl").load().values())
-        n = sum(c["n"] for c in cells)
-        return {"file": str(model), "digest": options.model_digest, "episodes": n,
-                "food_mean": sum(c["n"] * c["food_mean"] for c in cells) / n,
-                "food_by_team": {c["agents"]: c["food_mean"] for c in cells}}
+        score = play_validation(matrix, model, out, no_pheromones)
+        self.cpu_seconds += score["cpu_seconds"]
+        return {key: value for key, value in score.items() if key != "cpu_seconds"}
+
+
+def validation_matrix(validation: Validation, folder: Path) -> dict:
+    """The validation scenarios, written into (or kept in) ``folder``: 128x128-style worlds of
+    ``validation``'s size, infinite resources, no obstacles, one setting per team size."""
+    from formic_eval import generate_matrix, settings_grid
+
+    v = validation
+    grid = settings_grid([v.size], v.teams, [0.0], ["infinite"], v.steps)
+    return generate_matrix(grid, v.scenarios, v.seed, folder)
+
+
+def play_validation(matrix: dict, model: Path, out: Path, no_pheromones: bool = False) -> dict:
+    """``model`` on ``matrix`` (episodes kept in ``out``, reused when there): its file, digest,
+    episodes, mean food over them all and per team size, and the episodes' CPU seconds."""
+    from formic_eval import PolicyOptions, evaluate
+    from formic_eval.matrix import file_digest
+    from formic_eval.runner import EpisodeLog
+
+    options = PolicyOptions(model=str(model), model_digest=file_digest(model), no_pheromones=no_pheromones)
+    summary = evaluate(matrix, ["formic"], options, out, workers=1, source=str(out.parent / "scenarios"))
+    if summary["interrupted"]:
+        raise KeyboardInterrupt
+    cells = summary["cells"]
+    n = sum(c["n"] for c in cells)
+    return {"file": str(model), "digest": options.model_digest, "episodes": n,
+            "food_mean": sum(c["n"] * c["food_mean"] for c in cells) / n,
+            "food_by_team": {c["agents"]: c["food_mean"] for c in cells},
+            "cpu_seconds": sum(record["wall_s"] for record in EpisodeLog(out / "episodes.jsonl").load().values())}
