@@ -21,10 +21,14 @@ from formic_runtime.threads import configure_threads
 from formic_trainer.recipe import Validation, play_validation, validation_matrix
 
 
-def stage_ends(run_dir: Path) -> list[tuple[str, Path]]:
-    """(name, weights) of the end of every started stage of the run in ``run_dir``, in order:
+def run_identity(run_dir: Path) -> dict:
+    """What the run in ``run_dir`` trains and validates on, as its recipe stored it."""
+    return json.loads(json.loads((run_dir / "recipe.json").read_text())["identity"])
+
+
+def stage_ends(run_dir: Path, identity: dict) -> list[tuple[str, Path]]:
+    """(name, weights) of the end of every started stage of the run, in order:
     ``STAGE.mean`` when the stage wrote its mean, else ``STAGE.latest``."""
-    identity = json.loads(json.loads((run_dir / "recipe.json").read_text())["identity"])
     ends = []
     for stage in identity["stages"]:
         for part, file in (("mean", "mean.pt"), ("latest", "latest.pt")):
@@ -35,9 +39,9 @@ def stage_ends(run_dir: Path) -> list[tuple[str, Path]]:
     return ends
 
 
-def run_validation(run_dir: Path) -> Validation:
-    """The run's validation set, as its recipe stored it."""
-    v = json.loads(json.loads((run_dir / "recipe.json").read_text())["identity"])["validation"]
+def run_validation(identity: dict) -> Validation:
+    """The run's validation set."""
+    v = identity["validation"]
     return Validation(v["seed"], v["size"], tuple(v["teams"]), v["scenarios"], v["steps"])
 
 
@@ -58,11 +62,12 @@ def table_lines(scores: dict[str, dict]) -> list[str]:
 def main(run_dir: Path, stages: str) -> None:
     configure_threads(1)
     wanted = {name for name in stages.split(",") if name}
-    ends = [(name, weights) for name, weights in stage_ends(run_dir) if not wanted or name.split(".")[0] in wanted]
+    identity = run_identity(run_dir)
+    ends = [(name, weights) for name, weights in stage_ends(run_dir, identity) if not wanted or name.split(".")[0] in wanted]
     if not ends:
         raise click.ClickException(f"{run_dir}: no started stage{' among ' + stages if wanted else ''}")
     folder = run_dir / "validation"
-    matrix = validation_matrix(run_validation(run_dir), folder / "scenarios")
+    matrix = validation_matrix(run_validation(identity), folder / "scenarios")
     scores = {}
     for name, weights in ends:
         click.echo(f"{name}: {weights} -> {folder / name}", err=True)
