@@ -2,6 +2,7 @@
 """The paper's Tables I-III rebuilt from evaluation folders, beside the paper's (markdown).
 
     .venv/bin/python scripts/paper_tables.py eval/tables [--seeds eval/recipe-paper/seed1 eval/recipe-paper/seed2]
+        [--row-seeds eval/tables-seed2]
     .venv/bin/python scripts/paper_tables.py --write README.md   # the README's block, from the defaults
     .venv/bin/python scripts/paper_tables.py --check README.md   # exit 1 if the README is stale
 
@@ -11,8 +12,10 @@ run's ``model.pt`` on the tables' 16 cells (docs/training.md has the commands; t
 also with the channel empty, and the blind ``no-pheromones`` run only so, as the paper tested
 them). ``formic_eval.tables`` says how a row's relative performance is computed.
 ``--seeds``: the unchanged recipe's seeds (full budget), whose spread is printed as the noise
-scale of one seed. A row not evaluated yet says so. The defaults are the README's: ``eval/tables``
-and every ``eval/recipe-paper/seedS`` folder.
+scale of one seed. ``--row-seeds``: folders like ROOT holding rows trained again with another seed
+(against ROOT's reference); such a row gets a line per seed and one for the mean over its seeds
+(per scenario, the seeds' mean food). A row not evaluated yet says so. The defaults are the
+README's: ``eval/tables``, every ``eval/recipe-paper/seedS`` and every ``eval/tables-seedS`` folder.
 """
 
 from __future__ import annotations
@@ -26,7 +29,8 @@ sys.path.insert(0, str(ROOT / "src"))
 
 from formic_eval.markdown_block import add_block_options, publish  # noqa: E402
 from formic_eval.paper import PAPER_TEAMS  # noqa: E402
-from formic_eval.tables import REFERENCE, ROWS, relative_performance, seed_noise  # noqa: E402
+from formic_eval.tables import (REFERENCE, ROWS, Relative, evaluated_seeds, relative_performance,  # noqa: E402
+                                seed_noise)
 
 BEGIN, END = "<!-- tables:begin (scripts/paper_tables.py) -->", "<!-- tables:end -->"
 TITLES = {"I": "Table I: ablations", "II": "Table II: learning and non-learning agents in teams of 32",
@@ -43,7 +47,13 @@ def shown(path: Path) -> str:
     return path.resolve().relative_to(ROOT).as_posix() if path.resolve().is_relative_to(ROOT) else str(path)
 
 
-def tables(root: Path, seeds: list[Path]) -> list[str]:
+def row_line(label: str, found: Relative, paper: str) -> str:
+    teams = " | ".join(f"{found.by_team[n]:.0f}%" if n in found.by_team else "–" for n in PAPER_TEAMS)
+    verdicts = " / ".join(map(str, found.verdicts))
+    return f"| {label} | {percent(found.mean, found.std)} | {paper} | {teams} | {found.cells} | {verdicts} |"
+
+
+def tables(root: Path, seeds: list[Path], row_seeds: list[Path]) -> list[str]:
     lines = [f"Relative to `{shown(root / REFERENCE)}` on the same scenarios: per cell (infinite resources with and "
              "without 3 wipeouts, 0% and 5% obstacles, 16/32/64/128 agents; 128x128, 1024 steps) the row's food "
              "over the reference's, then the mean ± sample std over the cells, as the paper computed Table I; "
@@ -66,10 +76,14 @@ def tables(root: Path, seeds: list[Path]) -> list[str]:
                 lines.append(f"| {row.label} | not evaluated yet ({shown(root / row.switch)}) | {paper} | "
                              + " | ".join("–" for _ in PAPER_TEAMS) + " | 0 | – |")
                 continue
-            teams = " | ".join(f"{found.by_team[n]:.0f}%" if n in found.by_team else "–" for n in PAPER_TEAMS)
-            verdicts = " / ".join(map(str, found.verdicts))
-            lines.append(f"| {row.label} | {percent(found.mean, found.std)} | {paper} | {teams} | {found.cells} "
-                         f"| {verdicts} |")
+            lines.append(row_line(row.label, found, paper))
+            others = evaluated_seeds(row_seeds, row)
+            for folder in others:
+                lines.append(row_line(f"↳ another seed: `{shown(folder)}`",
+                                      relative_performance(root, row, [folder]), ""))
+            if others:
+                lines.append(row_line(f"↳ mean over its {len(others) + 1} seeds",
+                                      relative_performance(root, row, [root, *others]), ""))
     return lines
 
 
@@ -79,10 +93,12 @@ def main() -> int:
                         help="the folder of the rows' evaluation folders")
     parser.add_argument("--seeds", nargs="*", type=Path, default=sorted(ROOT.glob("eval/recipe-paper/seed*")),
                         help="eval folders of the unchanged recipe's seeds (the noise scale)")
+    parser.add_argument("--row-seeds", nargs="*", type=Path, default=sorted(ROOT.glob("eval/tables-seed*")),
+                        help="folders like ROOT holding rows trained with other seeds (against ROOT's reference)")
     add_block_options(parser, "tables")
     args = parser.parse_args()
     try:
-        lines = tables(args.root, args.seeds)
+        lines = tables(args.root, args.seeds, args.row_seeds)
     except ValueError as exc:
         sys.exit(f"paper_tables: {exc}")
     return publish(lines, BEGIN, END, args, "scripts/paper_tables.py")

@@ -103,6 +103,33 @@ def test_the_script_prints_each_table_beside_the_paper_and_names_rows_not_yet_ev
         "#### Table III: field of view"]
 
 
+def test_a_row_trained_with_more_seeds_gets_a_line_per_seed_and_the_mean_over_seeds(tmp_path):
+    """--row-seeds: another folder of rows (another training seed, no reference of its own) adds,
+    under a row it evaluated, that seed's line and the mean over the row's seeds, per scenario
+    against ROOT's reference; rows it lacks keep one line."""
+    root, seed2 = tmp_path / "tables", tmp_path / "tables-seed2"
+    scenarios = ("a", "b", "c")
+    write(root / "reference", episodes(lambda env, o, n: 100.0, scenarios=scenarios))
+    write(root / "learning-32-0", episodes(lambda env, o, n: 40.0, model="s1", scenarios=scenarios))
+    write(root / "fov5", episodes(lambda env, o, n: 50.0, model="f5", scenarios=scenarios))
+    # seed 2: 120 food on scenarios a and b, 110 on c (ahead everywhere); the mean over the two
+    # seeds, 80 80 75, is behind the reference in every cell
+    seed2_food = [dict(r, food=110.0 if r["scenario"] == "c" else 120.0)
+                  for r in episodes(lambda env, o, n: 0.0, model="s2", scenarios=scenarios)]
+    write(seed2 / "learning-32-0", seed2_food)
+    done = run_tables(str(root), "--seeds", "--row-seeds", str(seed2))
+    assert done.returncode == 0, done.stderr
+    lines = done.stdout.splitlines()
+    at = lines.index("| 32 learning + 0 non-learning agents | 40.0% ± 0.0% | 105.33% ± 10.88% | 40% | 40% | 40% "
+                     "| 40% | 16 | 16 / 0 / 0 |")
+    seed_line = f"| ↳ another seed: `{seed2}` | 116.7% ± 0.0% |  | 117% | 117% | 117% | 117% | 16 | 0 / 0 / 16 |"
+    mean_line = "| ↳ mean over its 2 seeds | 78.3% ± 0.0% |  | 78% | 78% | 78% | 78% | 16 | 16 / 0 / 0 |"
+    assert lines[at + 1:at + 3] == [seed_line, mean_line], done.stdout
+    fov5 = next(i for i, line in enumerate(lines) if line.startswith("| FOV 5 |"))
+    assert lines[fov5 + 1].startswith("| FOV 21 | not evaluated yet")
+    assert not any("Noise scale" in line for line in lines)  # --seeds given no folders
+
+
 def test_a_folder_with_two_models_in_one_row_is_refused(tmp_path):
     root = tmp_path / "tables"
     write(root / "reference", episodes(lambda env, o, n: 100.0))

@@ -121,12 +121,21 @@ class Relative:
         return cls(float(values.mean()), std, len(values), by_team)
 
 
-def relative_performance(root: Path, row: TableRow) -> Relative | None:
-    """The row's relative performance from ``root`` (None until its run is evaluated)."""
+def relative_performance(root: Path, row: TableRow, seeds: Sequence[Path] = ()) -> Relative | None:
+    """The row's relative performance against ``root``'s reference (None until evaluated).
+    ``seeds``: the folders (like ``root``: one per row) whose evaluations of the row count, by
+    default ``root`` alone; with several, the row's food per scenario is the mean over those
+    seeds that evaluated it (``mean_over_seeds``), so the paired intervals are the mean's."""
     reference = model_episodes(root / REFERENCE, "")
-    episodes = model_episodes(root / row.switch, row.variant)
+    per_seed = {str(folder): model_episodes(folder / row.switch, row.variant) for folder in (seeds or [root])}
+    episodes = mean_over_seeds({name: records for name, records in per_seed.items() if records})
     found = Relative.of(cell_ratios(episodes, reference))
     return None if found is None else dataclasses.replace(found, verdicts=cell_verdicts(episodes, reference))
+
+
+def evaluated_seeds(seed_roots: Sequence[Path], row: TableRow) -> list[Path]:
+    """The folders of ``seed_roots`` where the row has been evaluated (its other seeds so far)."""
+    return [folder for folder in seed_roots if model_episodes(folder / row.switch, row.variant)]
 
 
 def seed_noise(seed_folders: Sequence[Path]) -> Relative | None:
