@@ -21,7 +21,7 @@ import click
 import numpy as np
 
 from formic_cli.options import probe_options, stored_teams
-from formic_eval.probes import mean_over_scenarios
+from formic_eval.probes import probe_rows
 from formic_runtime.threads import configure_threads
 
 
@@ -71,15 +71,13 @@ def main(policies, model, scenario_dir, size, teams, count, channel_empty, steps
     """Per model and team size: deliveries, trip lengths and loads never delivered."""
     configure_threads()
     results = []
-    for team, scenarios in stored_teams(scenario_dir, size, teams, count):
-        for policy in policies.split(","):
-            row = {"policy": policy, "agents": team, "scenarios": len(scenarios),
-                   **mean_over_scenarios(scenarios, policy, model, steps, TripCounter, channel_empty)}
-            results.append(row)
-            click.echo(f"{policy:8s} {team:4d} agents  food {row['food']:6.1f}  deliveries/agent "
-                       f"{row['deliveries_per_agent']:4.1f}  trips: loaded {row['loaded_trip']:5.1f}, empty "
-                       f"{row['empty_trip']:5.1f} steps  carrying {row['carrying']:.0%}  "
-                       f"in a load never delivered {row['undelivered']:.0%}")
+    for row in probe_rows(stored_teams(scenario_dir, size, teams, count), policies, model, steps, TripCounter,
+                          channel_empty):
+        results.append(row)
+        click.echo(f"{row['policy']:8s} {row['agents']:4d} agents  food {row['food']:6.1f}  deliveries/agent "
+                   f"{row['deliveries_per_agent']:4.1f}  trips: loaded {row['loaded_trip']:5.1f}, empty "
+                   f"{row['empty_trip']:5.1f} steps  carrying {row['carrying']:.0%}  "
+                   f"in a load never delivered {row['undelivered']:.0%}")
     if out:
         Path(out).write_text(json.dumps({"steps": steps, "model": model, "channel_empty": channel_empty,
                                          "results": results}, indent=1))

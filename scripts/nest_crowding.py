@@ -22,7 +22,7 @@ import click
 import numpy as np
 
 from formic_cli.options import probe_options, stored_teams
-from formic_eval.probes import mean_over_scenarios
+from formic_eval.probes import probe_rows
 from formic_runtime.threads import configure_threads
 from formic_world.geometry import nest_centre
 
@@ -78,15 +78,13 @@ def main(policies, model, scenario_dir, size, teams, count, channel_empty, steps
     """Mean per step: carrying agents crowding the nest, agents queued at it, docks held."""
     configure_threads()
     results = []
-    for team, scenarios in stored_teams(scenario_dir, size, teams, count):
-        for policy in policies.split(","):
-            row = {"policy": policy, "agents": team, "scenarios": len(scenarios),
-                   **mean_over_scenarios(scenarios, policy, model, steps, lambda: CrowdCounter(radius), channel_empty)}
-            results.append(row)
-            click.echo(f"{policy:8s} {team:4d} agents  food {row['food']:6.1f}  crowd {row['crowd']:5.1f}  "
-                       f"in cache queues {row['in_cache_queues']:4.1f}  docks held {row['docks_held']:.2f}  "
-                       f"crowd moving {row['crowd_moving']:.0%}  joins when it may: loaded {row['cache_join']:.0%}, "
-                       f"empty {row['resource_join']:.0%}")
+    for row in probe_rows(stored_teams(scenario_dir, size, teams, count), policies, model, steps,
+                          lambda: CrowdCounter(radius), channel_empty):
+        results.append(row)
+        click.echo(f"{row['policy']:8s} {row['agents']:4d} agents  food {row['food']:6.1f}  crowd {row['crowd']:5.1f}  "
+                   f"in cache queues {row['in_cache_queues']:4.1f}  docks held {row['docks_held']:.2f}  "
+                   f"crowd moving {row['crowd_moving']:.0%}  joins when it may: loaded {row['cache_join']:.0%}, "
+                   f"empty {row['resource_join']:.0%}")
     if out:
         Path(out).write_text(json.dumps({"radius": radius, "steps": steps, "model": model, "results": results},
                                         indent=1))

@@ -5,7 +5,7 @@ optionally with the pheromone channel empty as ``formic eval --no-pheromones`` t
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 
 import numpy as np
 
@@ -36,4 +36,21 @@ def mean_over_scenarios(scenarios: Iterable[Scenario], policy: str, model: str |
         counter = make_counter()
         episode = play(scenario, policy, model, steps, counter, channel_empty)
         rows.append({"food": episode.food, **counter.table()})
-    return {key: float(np.nanmean([row[key] for row in rows])) for key in rows[0]}
+    return {key: defined_mean([row[key] for row in rows]) for key in rows[0]}
+
+
+def defined_mean(values: list[float]) -> float:
+    """The mean of the values that are not NaN; NaN, without numpy's warning, when none is."""
+    defined = [v for v in values if not np.isnan(v)]
+    return float(np.mean(defined)) if defined else float("nan")
+
+
+def probe_rows(teams: Iterable[tuple[int, list[Scenario]]], policies: str, model: str | None, steps: int | None,
+               make_counter: Callable[[], Callable[[World], None]],
+               channel_empty: bool = False) -> Iterator[dict]:
+    """Per team size (with its stored scenarios) and policy (comma-separated), one row of a
+    measuring script's table: policy, agents, scenarios and ``mean_over_scenarios``."""
+    for team, scenarios in teams:
+        for policy in policies.split(","):
+            yield {"policy": policy, "agents": team, "scenarios": len(scenarios),
+                   **mean_over_scenarios(scenarios, policy, model, steps, make_counter, channel_empty)}
