@@ -130,6 +130,30 @@ def test_a_row_trained_with_more_seeds_gets_a_line_per_seed_and_the_mean_over_se
     assert not any("Noise scale" in line for line in lines)  # --seeds given no folders
 
 
+def test_a_reference_trained_with_more_seeds_becomes_the_seeds_mean_for_every_row(tmp_path):
+    """A --row-seeds folder holding the reference too: every row (each seed's line and the mean)
+    is relative to the reference seeds' mean per scenario, and their spread is printed as the
+    noise scale at the tables' budget."""
+    root, seed2 = tmp_path / "tables", tmp_path / "tables-seed2"
+    write(root / "reference", episodes(lambda env, o, n: 100.0),
+          episodes(lambda env, o, n: 45.0, variant="no-pheromones"))
+    write(seed2 / "reference", episodes(lambda env, o, n: 80.0, model="r2"),
+          episodes(lambda env, o, n: 27.0, variant="no-pheromones", model="r2"))
+    write(root / "fov5", episodes(lambda env, o, n: 45.0, model="f5"))  # the reference seeds' mean is 90
+    done = run_tables(str(root), "--seeds", "--row-seeds", str(seed2))
+    assert done.returncode == 0, done.stderr
+    lines = done.stdout.splitlines()
+    assert lines[0].startswith(f"Relative to the reference row's mean over its 2 seeds (`{root / 'reference'}`, "
+                               f"`{seed2 / 'reference'}`; per scenario, the seeds' mean food) on the same scenarios")
+    # seed 1 at 100 and seed 2 at 80 are 111.1% and 88.9% of their mean: sample std of 32 seed-cells
+    assert "At the tables' budget (the reference row's 2 seeds, each over their mean, 32 seed-cells): ± 11.3%." in lines
+    assert "| FOV 5 | 50.0% ± 0.0% | 59.61% ± 11.00% | 50% | 50% | 50% | 50% | 16 | 16 / 0 / 0 |" in lines
+    at = next(i for i, line in enumerate(lines) if line.startswith("| Testing without pheromones"))
+    assert lines[at].startswith("| Testing without pheromones (empty channel) | 50.0% ± 0.0% |")  # 45 / 90
+    assert lines[at + 1].startswith(f"| ↳ another seed: `{seed2}` | 30.0% ± 0.0% |")  # 27 / 90
+    assert lines[at + 2].startswith("| ↳ mean over its 2 seeds | 40.0% ± 0.0% |")  # 36 / 90
+
+
 def test_a_folder_with_two_models_in_one_row_is_refused(tmp_path):
     root = tmp_path / "tables"
     write(root / "reference", episodes(lambda env, o, n: 100.0))

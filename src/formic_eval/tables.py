@@ -2,8 +2,9 @@
 
 Each row is the paper recipe trained with one switch (``formic train --recipe paper --switch
 NAME``), evaluated on the stored test scenarios, in ``ROOT/NAME/episodes.jsonl``; the reference
-(the unchanged recipe at the same budget) in ``ROOT/reference``. As the paper computed Table I, a
-row's relative performance is its food over the reference's on the same scenarios, per cell of
+(the unchanged recipe at the same budget) in ``ROOT/reference``; where the reference was trained
+with several seeds (``eval/tables-seedS/reference``), their mean per scenario. As the paper
+computed Table I, a row's relative performance is its food over the reference's on the same scenarios, per cell of
 the test set "with/without obstacles, with/without wipeouts, all team sizes" (16 cells:
 128x128, 1024 steps, infinite resources with and without 3 wipeouts, 0% and 5% obstacles, teams
 16-128), then the mean and sample standard deviation over the cells. Beside that, per cell, the
@@ -121,13 +122,20 @@ class Relative:
         return cls(float(values.mean()), std, len(values), by_team)
 
 
-def relative_performance(root: Path, row: TableRow, seeds: Sequence[Path] = ()) -> Relative | None:
-    """The row's relative performance against ``root``'s reference (None until evaluated).
-    ``seeds``: the folders (like ``root``: one per row) whose evaluations of the row count, by
-    default ``root`` alone; with several, the row's food per scenario is the mean over those
-    seeds that evaluated it (``mean_over_seeds``), so the paired intervals are the mean's."""
-    reference = model_episodes(root / REFERENCE, "")
-    per_seed = {str(folder): model_episodes(folder / row.switch, row.variant) for folder in (seeds or [root])}
+def reference_episodes(roots: Sequence[Path]) -> list[dict]:
+    """The full model at the tables' budget, as trained: per scenario, the mean food over those
+    of ``roots`` (folders like ``eval/tables``) whose reference has been evaluated; with one such
+    root, its episodes. Several reference seeds make a steadier denominator for every row."""
+    per_root = {str(root): model_episodes(root / REFERENCE, "") for root in roots}
+    return mean_over_seeds({name: records for name, records in per_root.items() if records})
+
+
+def relative_performance(reference: Sequence[dict], row: TableRow, seeds: Sequence[Path]) -> Relative | None:
+    """The row's relative performance against ``reference`` (``reference_episodes``; None until the
+    row is evaluated). ``seeds``: the folders (one per row each, like ``eval/tables``) whose
+    evaluations of the row count; with several, the row's food per scenario is the mean over
+    those seeds that evaluated it (``mean_over_seeds``), so the paired intervals are the mean's."""
+    per_seed = {str(folder): model_episodes(folder / row.switch, row.variant) for folder in seeds}
     episodes = mean_over_seeds({name: records for name, records in per_seed.items() if records})
     found = Relative.of(cell_ratios(episodes, reference))
     return None if found is None else dataclasses.replace(found, verdicts=cell_verdicts(episodes, reference))
