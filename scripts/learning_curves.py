@@ -22,23 +22,13 @@ import numpy as np
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
-from tensorboard.backend.event_processing.event_accumulator import EventAccumulator  # noqa: E402
+
+from formic_trainer.scalars import read_scalars  # noqa: E402
 
 PANELS = (("train/food_env0", "train/food_env1", "train/food_env2", "train/food_env3"),
           ("train/entropy",), ("train/valid_accuracy",), ("train/filter_probability", "train/highway_intensity"))
 SCHEDULES = {"train/filter_probability", "train/highway_intensity"}  # drawn as they are, not smoothed
 FOOD_MEAN = "train/food_mean_of_worlds"
-
-
-def read_scalars(run_dir: Path) -> dict[str, list[tuple[int, float]]]:
-    """Every scalar of every event file of a run (later files win on repeated steps: a resumed run)."""
-    series: dict[str, dict[int, float]] = {}
-    for path in sorted((run_dir / "tb").glob("events.out.tfevents.*")):
-        events = EventAccumulator(str(path))
-        events.Reload()
-        for tag in events.Tags()["scalars"]:
-            series.setdefault(tag, {}).update({e.step: e.value for e in events.Scalars(tag)})
-    return {tag: sorted(points.items()) for tag, points in series.items()}
 
 
 def mean_over_worlds(series: dict[str, list[tuple[int, float]]]) -> list[tuple[int, float]]:
