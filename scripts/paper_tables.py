@@ -63,9 +63,9 @@ def reference_words(folders: list[Path]) -> str:
 
 
 def tables(root: Path, seeds: list[Path], row_seeds: list[Path]) -> list[str]:
-    reference_roots = [folder for folder in [root, *row_seeds] if model_episodes(folder / REFERENCE, "")]
-    reference = reference_episodes(reference_roots or [root])
-    lines = [f"Relative to {reference_words([f / REFERENCE for f in reference_roots or [root]])} on the same "
+    reference_roots = [folder for folder in [root, *row_seeds] if model_episodes(folder / REFERENCE, "")] or [root]
+    reference = reference_episodes(reference_roots)
+    lines = [f"Relative to {reference_words([folder / REFERENCE for folder in reference_roots])} on the same "
              "scenarios: per cell (infinite resources with and without 3 wipeouts, 0% and 5% obstacles, "
              "16/32/64/128 agents; 128x128, 1024 steps) the row's food over the reference's, then the mean ± "
              "sample std over the cells, as the paper computed Table I; and the cells where the row is behind "

@@ -4,8 +4,8 @@ Each row is the paper recipe trained with one switch (``formic train --recipe pa
 NAME``), evaluated on the stored test scenarios, in ``ROOT/NAME/episodes.jsonl``; the reference
 (the unchanged recipe at the same budget) in ``ROOT/reference``; where the reference was trained
 with several seeds (``eval/tables-seedS/reference``), their mean per scenario. As the paper
-computed Table I, a row's relative performance is its food over the reference's on the same scenarios, per cell of
-the test set "with/without obstacles, with/without wipeouts, all team sizes" (16 cells:
+computed Table I, a row's relative performance is its food over the reference's on the same
+scenarios, per cell of the test set "with/without obstacles, with/without wipeouts, all team sizes" (16 cells:
 128x128, 1024 steps, infinite resources with and without 3 wipeouts, 0% and 5% obstacles, teams
 16-128), then the mean and sample standard deviation over the cells. Beside that, per cell, the
 paired difference of food on the same scenarios (``paired.compare``, a 95% interval) says whether
