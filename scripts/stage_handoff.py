@@ -23,14 +23,14 @@ from formic_trainer.scalars import read_scalars
 EARLY = 40  # the reference stage's episodes in which a fall shows
 
 
-def handoff(run_dir: Path) -> dict[str, float]:
+def handoff(run_dir: Path) -> dict[str, float | None]:
     """The numbers of one run (a ``formic train --recipe paper`` folder)."""
     basics, reference = read_scalars(run_dir / "basics"), read_scalars(run_dir / "reference")
     food = reference["train/food_mean"]
     late = [value for episode, value in food if episode > EARLY]
     return {"valid_share": basics["train/valid_rate"][-1][1], "basics_food": basics["train/food_mean"][-1][1],
             "first_food": food[0][1], "lowest_early": min(value for episode, value in food if episode <= EARLY),
-            "mean_late": float(np.mean(late)) if late else float("nan"), "episodes": food[-1][0]}
+            "mean_late": float(np.mean(late)) if late else None, "episodes": food[-1][0]}
 
 
 def has_stages(run_dir: Path) -> bool:
@@ -45,8 +45,9 @@ def main(runs: tuple[Path, ...]) -> None:
                f"| mean after {EARLY} | reference episodes logged |")
     click.echo("|---|---|---|---|---|---|---|")
     for run, numbers in sorted(found.items(), key=lambda item: item[1]["valid_share"]):
+        late = "–" if numbers["mean_late"] is None else f"{numbers['mean_late']:.1f}"  # not there yet
         click.echo(f"| {run} | {numbers['valid_share']:.2f} | {numbers['basics_food']:.1f} "
-                   f"| {numbers['first_food']:.1f} | {numbers['lowest_early']:.1f} | {numbers['mean_late']:.1f} "
+                   f"| {numbers['first_food']:.1f} | {numbers['lowest_early']:.1f} | {late} "
                    f"| {numbers['episodes']} |")
     skipped = [str(run) for run in runs if run.is_dir() and run not in found]  # a glob's log files: not runs
     if skipped:

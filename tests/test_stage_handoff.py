@@ -22,12 +22,16 @@ def test_runs_are_listed_by_their_last_basics_valid_share_with_the_reference_sta
     write_stage(steady / "reference", {"train/food_mean": [(4, 100.0), (40, 70.0), (44, 120.0), (48, 130.0)]})
     write_stage(fallen / "basics", {"train/valid_rate": [(8, 0.7)], "train/food_mean": [(8, 45.0)]})
     write_stage(fallen / "reference", {"train/food_mean": [(4, 60.0), (16, 12.0), (44, 10.0)]})
+    early = tmp_path / "early"  # still in its reference stage's first 40 episodes
+    write_stage(early / "basics", {"train/valid_rate": [(8, 0.8)], "train/food_mean": [(8, 50.0)]})
+    write_stage(early / "reference", {"train/food_mean": [(4, 90.0), (8, 80.0)]})
     write_stage(young / "basics", {"train/valid_rate": [(4, 0.6)], "train/food_mean": [(4, 30.0)]})
     (tmp_path / "steady.log").write_text("a run's log, not a run\n")
-    runs = [str(tmp_path / name) for name in ("steady", "steady.log", "fallen", "young")]
+    runs = [str(tmp_path / name) for name in ("steady", "steady.log", "fallen", "early", "young")]
     result = CliRunner().invoke(main, runs)
     assert result.exit_code == 0, result.output
     lines = result.output.splitlines()
-    assert lines[2:4] == [f"| {fallen} | 0.70 | 45.0 | 60.0 | 12.0 | 10.0 | 44 |",
+    assert lines[2:5] == [f"| {fallen} | 0.70 | 45.0 | 60.0 | 12.0 | 10.0 | 44 |",
+                          f"| {early} | 0.80 | 50.0 | 90.0 | 80.0 | – | 8 |",
                           f"| {steady} | 0.90 | 60.0 | 100.0 | 70.0 | 125.0 | 48 |"]
     assert lines[-1] == f"skipped (no basics and reference stages logged): {young}"
