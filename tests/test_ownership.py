@@ -18,6 +18,7 @@ pytest.importorskip("formic_interfaces.msg")
 from ros_helpers import ROOT, Spawner, fresh_domain_id  # noqa: E402
 
 from formic_runtime.episode import run_episode  # noqa: E402
+from formic_runtime.team import Team  # noqa: E402
 from formic_world import WorldConfig, generate_scenario  # noqa: E402
 
 WORLD = ["--agents", "8", "--size", "24", "--seed", "0", "--steps", "40", "--deadline-ms", "5000", "--json"]
@@ -198,9 +199,9 @@ def test_the_readme_robot_program_drives_its_external_agent(tmp_path):
         spawner.reap_all()
 
 
-def sim_digest(steps: int) -> tuple[float, str]:
+def sim_digest(steps: int, team: str | Team = "csaf11") -> tuple[float, str]:
     scenario = generate_scenario(WorldConfig(height=24, width=24, n_agents=8, episode_steps=steps), 0)
-    result = run_episode(scenario, "csaf11")
+    result = run_episode(scenario, team)
     return result.food, result.world.state_digest()
 
 
@@ -242,22 +243,28 @@ print("refused:", claim.why_refused, flush=True)
 
 
 def test_a_claim_from_a_node_the_run_did_not_start_is_refused(tmp_path):
-    """A node that claims the whole team before the run's host starts does not take it."""
+    """A node that claims the whole team before the run's host starts does not take it, and is
+    told why. Agent 7 is --external and its host starts only once the outsider has heard the
+    refusal: the world waits at step 0 for it, so the refusal reaches the outsider while the world
+    lives however slow discovery is (CI once ended a 400-step run before it did)."""
     spawner = Spawner(tmp_path, fresh_domain_id())
     try:
         outsider = spawner.python("outsider", "-c", OUTSIDER, str(spawner.domain_id), limit_s=120)
         outsider.wait_for_text("claimed", timeout=60)
-        # 400 steps: the world lives long enough to hear the claim even when discovery is slow (a
-        # claim that arrives after step 0 is judged the same way; CI once ended a 40-step run first)
         world = [*WORLD[:WORLD.index("--steps") + 1], "400", "--deadline-ms", "5000"]
-        run = spawner.formic("run", "run", *world, "--policy", "csaf11", "--json",
+        run = spawner.formic("run", "run", *world, "--policy", "csaf11", "--external", "7", "--json",
                              "--domain-id", str(spawner.domain_id), limit_s=120)
+        why = ("/formic/early_bird claims agents 0-6, which this run's own drivers (/formic/agent_host_0) drive "
+               "(--external: 7)")
+        assert outsider.wait(timeout=60) == 0 and why in outsider.output(), outsider.output()[-3000:]
+        spawner.formic("host", "agents", "--ids", "7", "--policy", "csaf11", "--once",
+                       "--domain-id", str(spawner.domain_id), limit_s=120)
         assert run.wait() == 0, run.output()[-3000:]
         summary = run.json_line()
-        assert (summary["food"], summary["state_digest"]) == sim_digest(400)
-        why = "/formic/early_bird claims agents 0-7, which this run's own drivers (/formic/agent_host_0) drive"
+        two_hosts = Team((("csaf11", tuple(range(7))), ("csaf11", (7,))))  # each host's csaf11 has its own marks
+        assert (summary["food"], summary["state_digest"]) == sim_digest(400, two_hosts)
+        assert summary["missed_actions"] == 0 and summary["rejected_actions"] == {}
         assert f"claim refused: {why}" in run.output()
-        assert outsider.wait(timeout=30) == 0 and why in outsider.output()
     finally:
         spawner.reap_all()
 
