@@ -82,7 +82,7 @@ def test_the_script_prints_each_table_beside_the_paper_and_names_rows_not_yet_ev
     seeds = [tmp_path / "seed1", tmp_path / "seed2"]
     write(seeds[0], episodes(lambda env, o, n: 90.0, model="s1"))
     write(seeds[1], episodes(lambda env, o, n: 110.0, model="s2"))
-    done = run_tables(str(root), "--seeds", *map(str, seeds))
+    done = run_tables(str(root), "--seeds", *map(str, seeds), "--row-seeds")  # none: not the repository's
     assert done.returncode == 0, done.stderr
     lines = done.stdout.splitlines()
     assert "| Training without pheromone curriculum | 70.0% ± 10.3% | 75.89% ± 7.00% | 70% | 70% | 70% | 70% | 16 " \
@@ -162,7 +162,7 @@ def test_a_folder_with_two_models_in_one_row_is_refused(tmp_path):
            for r in episodes(lambda env, o, n: 100.0, model="two")])
     with pytest.raises(ValueError, match="several models"):
         model_episodes(root / "fov21", "")
-    done = run_tables(str(root))
+    done = run_tables(str(root), "--seeds", "--row-seeds")
     assert done.returncode == 1 and "several models (one, two)" in done.stderr
 
 
