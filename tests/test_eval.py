@@ -163,6 +163,26 @@ def test_interrupt_keeps_finished_episodes_and_resume_finishes(tmp_path):
     assert not summary["interrupted"] and len(_lines(log.path)) == 3
 
 
+def test_the_report_names_the_workers_each_episode_was_timed_with(run_copy):
+    """Decision times depend on how many worker processes shared the cores: each record keeps
+    its count, and a resumed call's report names every count among its episodes, not its own."""
+    log = run_copy / "episodes.jsonl"
+    records = _lines(log)
+    assert {r["workers"] for r in records} == {2}
+    log.write_text("".join(json.dumps(r) + "\n" for r in records[:-1]))  # one episode to run again
+    result = _eval(run_copy, workers=2)
+    assert result.exit_code == 0, result.output
+    summary = json.loads(result.stdout)
+    assert summary["episodes"]["computed"] == 1 and summary["episode_workers"] == "1 or 2"
+    assert _lines(log)[-1]["workers"] == 1  # one pending episode runs in this process
+    assert "(with 1 or 2 worker process(es) sharing its cores)" in (run_copy / "results.md").read_text()
+    older = [{k: v for k, v in r.items() if k != "workers"} if i == 0 else r for i, r in enumerate(_lines(log))]
+    log.write_text("".join(json.dumps(r) + "\n" for r in older))  # as logged before records kept the count
+    result = CliRunner().invoke(cli, ["eval", "--report", "--out", str(run_copy), "--json"])
+    assert result.exit_code == 0, result.output
+    assert json.loads(result.stdout)["episode_workers"] == "1 or 2 or an unrecorded number of"
+
+
 # --------------------------------------------------------------------------------- outputs
 def test_csv_json_figures_and_report_parse(base_run):
     out, summary = base_run
@@ -336,7 +356,7 @@ def test_report_sets_our_numbers_beside_the_papers():
     records = [_record(a, s, f, 1.0, [0.0] * 1023 + [f], agents=16) | {"size": 128}
                for a, foods in (("formic", (240.0, 260.0)), ("planner", (270.0, 290.0))) for s, f in zip((1, 2), foods)]
     cells = aggregate(records)
-    run = {"algorithms": ["formic", "planner"], "scenarios": "x", "workers": 2,
+    run = {"algorithms": ["formic", "planner"], "scenarios": "x", "workers": 2, "episode_workers": "2",
            "episodes": {"total": 4, "done": 4, "computed": 4, "reused": 0}}
     report = markdown_report(cells, run)
     assert "| infinite, 0% obstacles | ForMIC | 16 | 250.0 ± 14.1 | 249 | 1.00 | 0.89 | 0.90 |" in report

@@ -145,7 +145,8 @@ def markdown_report(cells: list[dict], run: dict) -> str:
         "",
         "Food = total food deposited at the nest (mean ± std over scenarios). Time = the whole "
         "team's decision time per step on this machine (with "
-        f"{run['workers']} worker process(es) sharing its cores), and the same per agent.",
+        f"{run['episode_workers']} worker process(es) sharing its cores), and the same per "
+        "agent.",
         "",
     ]
     matched = [c for c in cells if c.get("paper_food") is not None]

@@ -180,6 +180,7 @@ def run_tasks(
 
     pending = [t for t in tasks if t.key not in done]
     stats = RunStats(reused=len(tasks) - len(pending))
+    timed_with = 1 if workers <= 1 or len(pending) <= 1 else min(workers, len(pending))  # as _results runs them
     start = time.perf_counter()
     disable = None if progress is None else not progress
     bar = tqdm(total=len(pending), desc="formic eval", unit="episode", file=sys.stderr, disable=disable,
@@ -187,6 +188,7 @@ def run_tasks(
     results = _results(pending, workers)
     try:
         for record in results:
+            record["workers"] = timed_with  # the processes that shared the cores while its times were measured
             log.append(record)
             done[record["key"]] = record
             stats.computed += 1
@@ -252,6 +254,7 @@ def evaluate(
         "episodes": {"total": len(tasks), "done": len(records), "computed": stats.computed, "reused": stats.reused},
         "interrupted": stats.interrupted,
         "workers": workers,
+        "episode_workers": workers_of(records),
         "model": options.model,
         "model_digest": options.model_digest,
         "greedy": options.greedy,
@@ -282,7 +285,15 @@ def write_report(out: Path, records: list[dict], cells: list[dict], run: dict,
     return {"out": str(out)} | run | {"cells": [public_cell(c) for c in cells], "files": files}
 
 
-def report_everything(out: Path, workers: str = "1 or 2") -> dict:
+def workers_of(records: list[dict]) -> str:
+    """How many worker processes shared the cores while these episodes' decision times were
+    measured (each record keeps its own; a reused episode was timed by the call that ran it)."""
+    counts = sorted({r["workers"] for r in records if "workers" in r})
+    unrecorded = any("workers" not in r for r in records)  # logged before records kept the count
+    return " or ".join([*map(str, counts), *(["an unrecorded number of"] if unrecorded else [])])
+
+
+def report_everything(out: Path) -> dict:
     """Rebuild the results from every episode logged in OUT (several calls with different
     algorithms or settings into one directory end up in one report); runs nothing."""
     from .results import aggregate
@@ -293,5 +304,5 @@ def report_everything(out: Path, workers: str = "1 or 2") -> dict:
     cells = aggregate(records)
     run = {"algorithms": sorted({r["algorithm"] for r in records}), "scenarios": str(out / "scenarios"),
            "episodes": {"total": len(records), "done": len(records), "computed": 0, "reused": len(records)},
-           "workers": workers, "report_only": True}
+           "episode_workers": workers_of(records), "report_only": True}
     return write_report(out, records, cells, run)
