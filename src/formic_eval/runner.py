@@ -180,7 +180,7 @@ def run_tasks(
 
     pending = [t for t in tasks if t.key not in done]
     stats = RunStats(reused=len(tasks) - len(pending))
-    timed_with = 1 if workers <= 1 or len(pending) <= 1 else min(workers, len(pending))  # as _results runs them
+    timed_with = worker_count(workers, len(pending))
     start = time.perf_counter()
     disable = None if progress is None else not progress
     bar = tqdm(total=len(pending), desc="formic eval", unit="episode", file=sys.stderr, disable=disable,
@@ -207,13 +207,18 @@ def run_tasks(
     return stats
 
 
+def worker_count(workers: int, pending: int) -> int:
+    """The processes that run ``pending`` episodes when ``workers`` are asked for (1: in this process)."""
+    return 1 if workers <= 1 or pending <= 1 else min(workers, pending)
+
+
 def _results(pending: list[Task], workers: int) -> Iterator[dict]:
-    if workers <= 1 or len(pending) <= 1:
+    workers = worker_count(workers, len(pending))
+    if workers == 1:
         configure_threads()
         for task in pending:
             yield run_task(task)
         return
-    workers = min(workers, len(pending))
     threads = max(1, (os.cpu_count() or 1) // workers)
     pool = get_context("spawn").Pool(workers, initializer=_init_worker, initargs=(threads,))
     try:
