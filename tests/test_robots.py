@@ -292,7 +292,8 @@ def test_mixed_team_of_simulated_agents_and_simulated_robots_forages_and_its_rec
     started by `formic run --robots --robots-sim`) on 32x32: the robots deliver food, no two
     agents ever share a cell, every committed step has each robot stopped within the tolerance
     of its cell, robots that stall make moves fail (the world applies NO_ACTION instead), the
-    recording verifies, and the live view draws the robots."""
+    recording verifies, and the live view draws the robots (`--view-wait`: the world waits for this
+    test's viewer before step 0, however slowly the machine starts it)."""
     pytest.importorskip("rclpy")
     pytest.importorskip("formic_interfaces.msg")
     from ros_helpers import Spawner, fresh_domain_id
@@ -308,10 +309,11 @@ def test_mixed_team_of_simulated_agents_and_simulated_robots_forages_and_its_rec
     try:
         run = spawner.formic(
             "run", "run", "--agents", "32", "--size", "32", "--steps", str(MIXED_STEPS), "--seed", str(MIXED_SEED),
-            "--robots", "28-31", "--robots-sim", "--cell-size", "0.5", "--robot-max-speed", "2.0", "--robot-max-turn", "8",
-            "--robot-tolerance", str(TOLERANCE), "--robot-cell-s", "2.5", "--robot-stall-rate", "0.02",
-            "--record", str(recording), "--view", "--view-port", str(port), "--log-dir", str(tmp_path / "logs"),
-            "--timeout", "400", "--json", limit_s=460)
+            "--robots", "28-31", "--robots-sim", "--cell-size", "0.5", "--robot-max-speed", "2.0",
+            "--robot-max-turn", "8", "--robot-tolerance", str(TOLERANCE), "--robot-cell-s", "2.5",
+            "--robot-stall-rate", "0.02",
+            "--record", str(recording), "--view", "--view-port", str(port), "--view-wait",
+            "--log-dir", str(tmp_path / "logs"), "--timeout", "400", "--json", limit_s=460)
         run.wait_for_text(f"ws://127.0.0.1:{port}", 60)
         scenes, seen = [], Counter()
         with FoxgloveClient(f"ws://127.0.0.1:{port}", timeout_s=60) as client:

@@ -312,7 +312,7 @@ def test_run_view_streams_a_distributed_run_and_replay_view_shows_its_recording(
     from ros_helpers import fresh_domain_id, ros_test_environment
 
     port, recording = _free_port(), tmp_path / "rec"
-    process = _formic(["run", "--view", "--view-port", str(port), "--policy", "csaf11", "--agents", "16",
+    process = _formic(["run", "--view", "--view-port", str(port), "--view-wait", "--policy", "csaf11", "--agents", "16",
                        "--size", "32", "--steps", "300", "--transport", "batched", "--rate", "100", "--json",
                        "--timeout", "100", "--record", str(recording)],
                       tmp_path / "run.log", env=ros_test_environment(fresh_domain_id()))
@@ -323,8 +323,10 @@ def test_run_view_streams_a_distributed_run_and_replay_view_shows_its_recording(
     assert process.returncode == 0, (tmp_path / "run.log").read_text()
     summary = json.loads(out.strip().splitlines()[-1])
     _check_stream(got, 16, 32, summary)
+    # --view-wait: the world stepped only once this viewer subscribed, so its first frame is the start
+    assert min(min(got[topic], default=summary["steps"]) for topic in TOPICS) == 0
     for step, score in got[SCORE_TOPIC].items():  # the world node's own score at each streamed step
-        assert score["data"] == summary["food_curve"][step - 1]
+        assert score["data"] == (summary["food_curve"][step - 1] if step else 0.0)
 
     port = _free_port()  # the recording, re-simulated into the same view at 10x sim time
     process = _formic(["replay", str(recording), "--view", "--view-port", str(port), "--view-wait", "--rate", "10",

@@ -128,19 +128,16 @@ def world_config_from(kwargs: dict) -> tuple[WorldConfig, int]:
     return config, seed
 
 
-def view_options(wait: bool = True):
-    """--view and --view-port (and --view-wait): the live view (formic_view) of a run."""
-    options = [
+def view_options():
+    """--view, --view-port and --view-wait: the live view (formic_view) of a run."""
+    return option_group(
         click.option("--view", "live_view", is_flag=True,
                      help="Serve a live view of the run while it goes (Foxglove WebSocket; open it in "
                           "Foxglove or Lichtblick)."),
         click.option("--view-port", default=DEFAULT_PORT, show_default=True,
                      help=f"Port of the live view (on {DEFAULT_HOST}; 0: any free port)."),
-    ]
-    if wait:
-        options.append(click.option("--view-wait", is_flag=True,
-                                    help="With --view: start stepping once a viewer has subscribed."))
-    return option_group(*options)
+        click.option("--view-wait", is_flag=True, help="With --view: start stepping once a viewer has subscribed."),
+    )
 
 
 def open_live_view(port: int, wait: bool = False):

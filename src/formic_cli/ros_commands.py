@@ -91,10 +91,10 @@ def _stop_signals_as_interrupt() -> None:
 @click.option("--record", type=click.Path(file_okay=False), help="Record every topic to this rosbag2 (MCAP) directory.")
 @lockstep_options()
 @launch_options
-@view_options(wait=False)
+@view_options()
 @run_robot_options
 @json_option()
-def run(scenario_file, external, live_view, view_port, as_json, **fields) -> None:
+def run(scenario_file, external, live_view, view_port, view_wait, as_json, **fields) -> None:
     """The main job: world, agent hosts (or the planner) and recorder as separate ROS processes."""
     from formic_ros.launcher import RunOptions, launch
 
@@ -103,7 +103,7 @@ def run(scenario_file, external, live_view, view_port, as_json, **fields) -> Non
     scenario = scenario_from(scenario_file, fields)  # takes the world options out: RunOptions' fields remain
     options = RunOptions(scenario=scenario, external=_parse_external(external), robots=robots, **fields,
                          progress=not as_json and sys.stderr.isatty(),
-                         view_port=view_port if live_view else None)
+                         view_port=view_port if live_view else None, view_wait=live_view and view_wait)
     if live_view:  # served by the world process (formic_view), announced here where the user looks
         from formic_view import DEFAULT_HOST, address, announcement
 
@@ -155,10 +155,10 @@ def run(scenario_file, external, live_view, view_port, as_json, **fields) -> Non
               help="Training mode: global episode to start from (a resumed run's).")
 @click.option("--progress", is_flag=True, help="Show a progress bar on stderr.")
 @world_robot_options
-@view_options(wait=False)
+@view_options()
 @json_option(help="Print the summary as one JSON line.")
 def world(scenario_file, domain_id, deadline_ms, stay, train_config, episodes, first_episode, live_view, view_port,
-          as_json, **fields) -> None:
+          view_wait, as_json, **fields) -> None:
     """The world node: owns the simulation and steps it with the agents over ROS."""
     from formic_ros.lockstep import RunError
     from formic_ros.training_world import require_one_world, serve_training_world
@@ -166,7 +166,8 @@ def world(scenario_file, domain_id, deadline_ms, stay, train_config, episodes, f
     from formic_ros.world_options import WorldNodeOptions
 
     world_kw = {name: fields.pop(name) for name in WORLD_OPTION_NAMES}  # the rest are WorldNodeOptions'
-    options = WorldNodeOptions(deadline_s=deadline_ms / 1e3, view_port=view_port if live_view else None, **fields)
+    options = WorldNodeOptions(deadline_s=deadline_ms / 1e3, view_port=view_port if live_view else None,
+                               view_wait=live_view and view_wait, **fields)
     if train_config:
         from formic_trainer.config import load_train_config
 

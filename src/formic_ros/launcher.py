@@ -62,6 +62,7 @@ class RunOptions:
     log_dir: str | None = None  # children's output there (one file each) instead of stderr
     timeout_s: float | None = None  # give up on the world after this long
     view_port: int | None = None  # the world serves a live view (formic_view) on this port
+    view_wait: bool = False  # step 0 waits for a viewer to subscribe to it
     robots: RobotRunOptions | None = None  # robot agents: their bridges (and simulator), docs/robots.md
 
 
@@ -70,6 +71,7 @@ def world_spec(opts: RunOptions, scenario_file: Path, label: str, drivers: list[
         namespace=opts.namespace, deadline_s=opts.deadline_ms / 1e3, startup_timeout_s=opts.startup_timeout_s,
         rate_hz=opts.rate_hz or None, viewer_every=opts.viewer_every, policy_label=label,
         recorders=1 if opts.record else 0, progress=opts.progress, view_port=opts.view_port,
+        view_wait=opts.view_wait,
         external=tuple(opts.external), drivers=tuple(topics.full_name(opts.namespace, name) for name in drivers),
         **(opts.robots.world_fields() if opts.robots else {}),
     )

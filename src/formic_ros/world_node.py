@@ -242,12 +242,18 @@ class WorldNode(Node):
 
         opts, world, cfg = self.options, self.world, self.scenario.config
         self._wait_for_subscribers(executor)
+        if self.view is not None and self.options.view_wait and not self.view.subscribed.is_set():
+            self.get_logger().info(f"waiting for a viewer to subscribe at {self.view.url}")
+            while not self.view.subscribed.is_set():  # spinning: the agents' discovery goes on meanwhile
+                executor.spin_once(timeout_sec=0.1)
         with self.core_lock:
             self.result = world.last_result if world.t == 0 else world.reset(self.scenario)  # a new world is reset
         if self.robots is not None:  # every robot at its start cell
             self.robots.place(executor, world, opts.startup_timeout_s)
         self.book = EpisodeStats(cfg.n_agents, cfg.episode_steps)
         self._publish_state()
+        if self.view is not None:  # the start, as formic sim and formic replay show it
+            self.view.publish(world)
         self.started = self.tick = time.monotonic()
         self.clock = {"stepping_from": self.started, "cpu_from": time.process_time()}
         deadline = f"lockstep, deadline {opts.deadline_s * 1e3:.0f} ms"

@@ -25,6 +25,7 @@ class WorldNodeOptions:
     progress: bool = False
     allow_empty: bool = False  # step on when no agent answered step 0 (else NobodyJoined)
     view_port: int | None = None  # live view (formic_view, Foxglove WebSocket) on this port; None: none
+    view_wait: bool = False  # with view_port: step 0 waits for a viewer to subscribe
     external: tuple[int, ...] | None = None  # agents other nodes may drive (None: any; formic_ros.ownership)
     drivers: tuple[str, ...] | None = None  # the run's own driver nodes, the only claimants of the rest (None: anyone)
     paused: bool = False  # start paused at step 0 and stay up for simulation_interfaces clients (sim_control)
