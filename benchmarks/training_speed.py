@@ -10,6 +10,7 @@ network's forward pass and sampling), the worlds (observations, frames, stepping
 
     .venv/bin/python benchmarks/training_speed.py --threads 2 --steps 128
 
+``--stage crowd --switch fov21`` times another stage, with one of the recipe's switches.
 ``--src DIR`` times another revision's ``src/`` with the same settings (what
 ``benchmarks/compare_revisions.py --benches training`` does). Run it on a quiet machine.
 """
@@ -29,11 +30,12 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def recipe_settings(stage: str | None) -> dict:
-    """A recipe stage's full training configuration (this tree's recipe), as a plain dict."""
+def recipe_settings(stage: str | None, switch: str = "") -> dict:
+    """A recipe stage's full training configuration (this tree's recipe, with ``switch`` if
+    given), as a plain dict."""
     from formic_trainer.recipe import load_recipe, stage_config
 
-    recipe = load_recipe("paper")
+    recipe = load_recipe("paper", switch)
     index = len(recipe.stages) - 1 if stage is None else [s.name for s in recipe.stages].index(stage)
     cfg = stage_config(recipe, index, Path(tempfile.gettempdir()), seed=1)
     return {**cfg.to_dict(), "init_weights": ""}
@@ -77,7 +79,8 @@ def measure(settings: dict, threads: int, steps: int) -> dict:
         trainer.run_episode_set()
         wall, cpu = time.perf_counter() - started, time.process_time() - cpu_started
     totals["other (Python loop, bookkeeping)"] = wall - sum(totals.values())
-    return {"threads": threads, "episode_steps": steps, "agents": sum(cfg.teams), "learners": len(cfg.teams) * 16,
+    return {"threads": threads, "episode_steps": steps, "agents": sum(cfg.teams),
+            "learners": sum(n if cfg.learning_agents < 0 else min(n, cfg.learning_agents) for n in cfg.teams),
             "agent_steps": trainer.env_steps, "wall_s": wall, "cpu_s": cpu,
             "agent_steps_per_s": trainer.env_steps / wall, "seconds": dict(totals)}
 
@@ -87,19 +90,20 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=2, help="torch threads (the recipe trains with 1)")
     parser.add_argument("--steps", type=int, default=128, help="episode steps timed (one rollout per 128)")
     parser.add_argument("--stage", help="recipe stage whose settings to use (default: the last)")
+    parser.add_argument("--switch", default="", help="one of the recipe's switches laid over it (e.g. fov21)")
     parser.add_argument("--src", type=Path, help="another revision's src/ to time with these settings")
     parser.add_argument("--settings", type=Path, help=argparse.SUPPRESS)  # the child's side of --src
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     args = parser.parse_args()
     if args.src is not None:  # the other revision runs in its own interpreter, on these settings
         with tempfile.NamedTemporaryFile("w", suffix=".json") as f:
-            json.dump(recipe_settings(args.stage), f)
+            json.dump(recipe_settings(args.stage, args.switch), f)
             f.flush()
             env = {**os.environ, "PYTHONPATH": str(args.src)}
             cmd = [sys.executable, __file__, "--settings", f.name, "--threads", str(args.threads),
                    "--steps", str(args.steps), "--json"]
             sys.exit(subprocess.run(cmd, env=env).returncode)
-    settings = json.loads(args.settings.read_text()) if args.settings else recipe_settings(args.stage)
+    settings = json.loads(args.settings.read_text()) if args.settings else recipe_settings(args.stage, args.switch)
     result = measure(settings, args.threads, args.steps)
     if args.json:
         print(json.dumps(result))

@@ -6,10 +6,11 @@
 # is training (its folder held) is skipped, so two of these side by side share the rows, one
 # core each. Each row resumes from its checkpoints, so after a kill the same command goes on.
 # Usage: scripts/train_tables.sh [RUNS] (default models/training/tables). RECIPE (paper), SCALE
-# (0.5) and SEED (1) change the runs; FORMIC may name another way to call the CLI (e.g. one
-# pinned to a worktree: "env PYTHONPATH=/work/tables-tree/src .venv/bin/python -m formic_cli.main").
+# (0.5) and SEED (1) change the runs, THREADS (unset: the recipe's) how fast (`--threads`); FORMIC
+# may name another way to call the CLI (e.g. one pinned to a worktree:
+# "env PYTHONPATH=/work/tables-tree/src .venv/bin/python -m formic_cli.main").
 set -euo pipefail
-usage() { sed -n '2,10p' "$0"; }
+usage() { sed -n '2,11p' "$0"; }
 case "${1:-}" in -h|--help) usage; exit 0 ;; esac
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 RUNS=${1:-models/training/tables}
@@ -29,8 +30,10 @@ for row in reference $SWITCHES; do
     echo "$row: another process is training it, skipped"; continue
   fi
   switch=(); [ "$row" = reference ] || switch=(--switch "$row")
+  threads=(); [ -z "${THREADS:-}" ] || threads=(--threads "$THREADS")
   echo "$row: training ($dir.log)"
-  if $FORMIC train --recipe "$RECIPE" --scale "$SCALE" --seed "$SEED" "${switch[@]}" --run-dir "$dir" \
+  if $FORMIC train --recipe "$RECIPE" --scale "$SCALE" --seed "$SEED" "${switch[@]}" "${threads[@]}" \
+      --run-dir "$dir" \
       >>"$dir.log" 2>&1; then
     echo "$row: done ($dir/model.pt)"
   elif tail -n 1 "$dir.log" | grep -q "is in use by another process"; then

@@ -264,6 +264,27 @@ def test_a_run_resumes_across_comment_edits_but_not_across_switches(tmp_path):
         _Run(load_recipe("smoke", "all-learn"), legacy, 1, print)
 
 
+def test_a_run_resumes_on_another_thread_count_and_validates_in_as_many_processes(tmp_path):
+    """--threads is how fast, not what is trained: a run killed on the recipe's one thread
+    resumes on two (its claim unchanged), the resumed stage's configuration says so, and the
+    validation runs in two processes."""
+    parts = tmp_path / "parts"
+    run(parts, stop_at="| recipe 6/12 episodes")
+    claim = (parts / "recipe.json").read_text()
+    result = CliRunner().invoke(cli, ["train", "--recipe", "smoke", "--seed", "1", "--run-dir", str(parts),
+                                      "--threads", "2"])
+    assert result.exit_code == 0, result.output
+    assert "resuming at episode 2, 2 torch thread(s)" in result.output
+    assert (parts / "recipe.json").read_text() == claim
+    assert load_train_config(parts / "middle" / "config.json").threads == 2
+    assert load_train_config(parts / "first" / "config.json").threads == 1  # done before: untouched
+    records = [json.loads(line) for line in (parts / "validation" / "last.mean" / "episodes.jsonl").open()]
+    assert {r["workers"] for r in records} == {2}
+    bad = CliRunner().invoke(cli, ["train", "--recipe", "smoke", "--seed", "1", "--run-dir", str(parts),
+                                   "--threads", "0"])
+    assert bad.exit_code == 2 and "--threads" in bad.output
+
+
 def test_a_recipe_trained_without_pheromones_is_validated_without_them(tmp_path):
     lines: list[str] = []
     run_recipe(load_recipe("smoke", "blind"), tmp_path / "blind", seed=1, echo=lines.append)
@@ -325,17 +346,17 @@ def test_a_run_directory_in_use_is_refused_at_once_and_freed_when_its_holder_die
 
 def test_train_tables_trains_every_row_once_and_skips_a_row_another_process_holds(tmp_path):
     """scripts/train_tables.sh: the reference row, then one row per switch of the recipe; a row
-    whose folder another process holds is skipped (two queues share the rows), and a second
-    pass finds every row done and trains nothing."""
+    whose folder another process holds is skipped (two queues share the rows), THREADS reaches
+    `--threads`, and a last pass finds every row done and trains nothing."""
     import subprocess
 
     from formic_world.files import held_directory
 
     runs = tmp_path / "runs"
 
-    def train_tables() -> list[str]:
+    def train_tables(**env: str) -> list[str]:
         done = subprocess.run([str(ROOT / "scripts" / "train_tables.sh"), str(runs)], capture_output=True,
-                              text=True, timeout=300, env={**os.environ, "RECIPE": "smoke", "SCALE": "1"})
+                              text=True, timeout=300, env={**os.environ, "RECIPE": "smoke", "SCALE": "1", **env})
         assert done.returncode == 0, done.stdout + done.stderr
         return [line for line in done.stdout.splitlines() if not line.endswith(".log)")]
 
@@ -344,10 +365,12 @@ def test_train_tables_trains_every_row_once_and_skips_a_row_another_process_hold
                                   "blind: another process is training it, skipped",
                                   f"all-learn: done ({runs}/all-learn/model.pt)"]
     assert not (runs / "blind" / "model.pt").exists()
-    assert train_tables() == [f"reference: done ({runs}/reference/model.pt)",
+    assert train_tables(THREADS="2") == [f"reference: done ({runs}/reference/model.pt)",
                               f"blind: done ({runs}/blind/model.pt)",
                               f"all-learn: done ({runs}/all-learn/model.pt)"]
     logs = {name: (runs / f"{name}.log").read_text() for name in ("reference", "blind", "all-learn")}
     assert train_tables() == [f"{name}: done ({runs}/{name}/model.pt)" for name in logs]
     assert {name: (runs / f"{name}.log").read_text() for name in logs} == logs
     assert json.loads((runs / "blind" / "recipe.json").read_text())["switch"] == "blind"
+    assert load_train_config(runs / "blind" / "last" / "config.json").threads == 2  # THREADS: --threads 2
+    assert load_train_config(runs / "all-learn" / "last" / "config.json").threads == 1

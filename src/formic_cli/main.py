@@ -247,13 +247,17 @@ def bench_decide(size, teams, steps, seed, policy, model, threads, as_json) -> N
 @click.option("--scale", type=float, default=1.0, show_default=True,
               help="With --recipe: every stage's episodes, means and schedules times this, in (0, 1] "
                    "(table rows at one smaller budget).")
+@click.option("--threads", type=click.IntRange(min=1),
+              help="With --recipe: torch threads for every stage and processes for its validation, instead of "
+                   "the recipe's (speed only; a run may resume with another count).")
 @click.pass_context
-def train(ctx, preset, run_dir, episodes, minutes, fresh, overrides, export, recipe, seed, switch, scale) -> None:
+def train(ctx, preset, run_dir, episodes, minutes, fresh, overrides, export, recipe, seed, switch, scale,
+          threads) -> None:
     """Train a policy; checkpoints to RUN_DIR/latest.pt, TensorBoard logs to RUN_DIR/tb.
 
     Resumes from RUN_DIR/latest.pt when it exists. `--episodes 0 --export FILE` only exports."""
-    if recipe is not None or seed is not None or switch or scale != 1:
-        _train_recipe(ctx, recipe, seed, switch, scale, Path(run_dir))
+    if recipe is not None or seed is not None or switch or scale != 1 or threads is not None:
+        _train_recipe(ctx, recipe, seed, switch, scale, threads, Path(run_dir))
         return
     from formic_trainer.config import make_config, parse_overrides
     from formic_trainer.train import Trainer, export_model
@@ -268,7 +272,7 @@ def train(ctx, preset, run_dir, episodes, minutes, fresh, overrides, export, rec
 
 
 def _train_recipe(ctx: click.Context, recipe: str | None, seed: int | None, switch: str, scale: float,
-                  run_dir: Path) -> None:
+                  threads: int | None, run_dir: Path) -> None:
     """`formic train --recipe`: the recipe sets every stage, so the single-run options are refused."""
     from click.core import ParameterSource
 
@@ -282,7 +286,7 @@ def _train_recipe(ctx: click.Context, recipe: str | None, seed: int | None, swit
     if given:
         raise click.UsageError(f"--recipe sets every stage itself: drop {', '.join(given)}")
     with click_errors(TypeError, ValueError, interrupted="interrupted: rerun the same command to resume"):
-        run_recipe(load_recipe(recipe, switch, scale), run_dir, seed, echo=click.echo)
+        run_recipe(load_recipe(recipe, switch, scale), run_dir, seed, echo=click.echo, threads=threads)
 
 
 def _register_optional() -> None:

@@ -288,12 +288,14 @@ def weights_file(run_dir: Path, ref: str) -> Path:
     return run_dir / name / ("mean.pt" if part else "latest.pt")
 
 
-def stage_config(recipe: Recipe, index: int, run_dir: Path, seed: int) -> TrainConfig:
+def stage_config(recipe: Recipe, index: int, run_dir: Path, seed: int, threads: int | None = None) -> TrainConfig:
     """Stage ``index``'s training configuration; its seed is 1000 * seed + index + 1, so no two
-    stages of a run and no two runs of seeds below 1000 share a random stream."""
+    stages of a run and no two runs of seeds below 1000 share a random stream. ``threads``
+    replaces the stage's torch threads (speed only: a stage may resume with another count)."""
     stage = recipe.stages[index]
     start = "" if stage.start == "scratch" else str(weights_file(run_dir, stage.start))
-    return make_config(recipe.preset, **stage.settings, seed=1000 * seed + index + 1,
+    settings = stage.settings if threads is None else {**stage.settings, "threads": threads}
+    return make_config(recipe.preset, **settings, seed=1000 * seed + index + 1,
                        total_episodes=stage.episodes, init_weights=start)
 
 
@@ -317,12 +319,17 @@ def _write_json(path: Path, data: dict) -> None:
         handle.write(json.dumps(data, indent=2) + "\n")
 
 
-def run_recipe(recipe: Recipe, run_dir: Path, seed: int, echo: Callable[[str], None] = print) -> Path:
+def run_recipe(recipe: Recipe, run_dir: Path, seed: int, echo: Callable[[str], None] = print,
+               threads: int | None = None) -> Path:
     """Run (or resume) every stage of ``recipe`` in ``run_dir``, then choose the model on
     validation; returns ``run_dir/model.pt``. The run holds ``run_dir`` throughout: a second
-    process on the same folder fails at once."""
+    process on the same folder fails at once. ``threads``: torch threads for every stage and
+    processes for validation, instead of the recipe's (how fast, not what is trained: not part of
+    the run's identity, so a run may resume with another count)."""
+    if threads is not None and threads < 1:
+        raise ValueError(f"threads must be at least 1, not {threads}")
     with held_directory(run_dir):
-        run = _Run(recipe, Path(run_dir), seed, echo)
+        run = _Run(recipe, Path(run_dir), seed, echo, threads)
         for index in range(len(recipe.stages)):
             run.stage(index)
         return run.select()
@@ -331,8 +338,9 @@ def run_recipe(recipe: Recipe, run_dir: Path, seed: int, echo: Callable[[str], N
 class _Run:
     """One run of a recipe: its directory, and the budget it has spent (for the progress lines)."""
 
-    def __init__(self, recipe: Recipe, run_dir: Path, seed: int, echo: Callable[[str], None]):
-        self.recipe, self.run_dir, self.seed, self.echo = recipe, run_dir, seed, echo
+    def __init__(self, recipe: Recipe, run_dir: Path, seed: int, echo: Callable[[str], None],
+                 threads: int | None = None):
+        self.recipe, self.run_dir, self.seed, self.echo, self.threads = recipe, run_dir, seed, echo, threads
         self.trainer: Trainer | None = None  # the trainer of the stage in progress
         self.episodes, self.cpu_seconds = 0, 0.0  # of the stages finished
         claim = run_dir / "recipe.json"  # a folder holds one run: a skipped or resumed stage is this recipe's
@@ -361,9 +369,10 @@ class _Run:
         else:
             fresh = "" if stage.start == "scratch" else " (a fresh optimiser)"
             resume = f", resuming at episode {episode}" if episode else ""
+            resume += f", {self.threads} torch thread(s)" if self.threads else ""
             self.echo(f"stage {index + 1}/{count} {stage.name}: {stage.episodes} episodes from {stage.start}{fresh}"
                       f"{resume} | {self.budget(self.episodes + episode, self.cpu_seconds + progress['cpu_seconds'])}")
-            cfg = stage_config(self.recipe, index, self.run_dir, self.seed)
+            cfg = stage_config(self.recipe, index, self.run_dir, self.seed, self.threads)
             while episode < stage.episodes:
                 self.snapshot(stage, episode)
                 self.trainer = None  # while it starts: its lines carry no budget yet
@@ -445,9 +454,9 @@ class _Run:
         return seen.pop()
 
     def validate(self, matrix: dict, model: Path, out: Path, no_pheromones: bool = False) -> dict:
-        """``model`` on the validation scenarios; their single-threaded episode clock joins the CPU budget."""
+        """``model`` on the validation scenarios; their one-thread episode clock joins the CPU budget."""
         self.echo(f"validation: {model}{' (pheromone channel empty)' if no_pheromones else ''} -> {out}")
-        score = play_validation(matrix, model, out, no_pheromones)
+        score = play_validation(matrix, model, out, no_pheromones, workers=self.threads or 1)
         self.cpu_seconds += score["cpu_seconds"]
         return {key: value for key, value in score.items() if key != "cpu_seconds"}
 
@@ -462,15 +471,16 @@ def validation_matrix(validation: Validation, folder: Path) -> dict:
     return generate_matrix(grid, v.scenarios, v.seed, folder)
 
 
-def play_validation(matrix: dict, model: Path, out: Path, no_pheromones: bool = False) -> dict:
-    """``model`` on ``matrix`` (episodes kept in ``out``, reused when there): its file, digest,
-    episodes, mean food over them all and per team size, and the episodes' CPU seconds."""
+def play_validation(matrix: dict, model: Path, out: Path, no_pheromones: bool = False, workers: int = 1) -> dict:
+    """``model`` on ``matrix`` (episodes kept in ``out``, reused when there) in ``workers``
+    one-thread processes: its file, digest, episodes, mean food over them all and per team size,
+    and the episodes' CPU seconds."""
     from formic_eval import PolicyOptions, evaluate
     from formic_eval.matrix import file_digest
     from formic_eval.runner import EpisodeLog
 
     options = PolicyOptions(model=str(model), model_digest=file_digest(model), no_pheromones=no_pheromones)
-    summary = evaluate(matrix, ["formic"], options, out, workers=1, source=str(out.parent / "scenarios"))
+    summary = evaluate(matrix, ["formic"], options, out, workers=workers, source=str(out.parent / "scenarios"))
     if summary["interrupted"]:
         raise KeyboardInterrupt
     cells = summary["cells"]
