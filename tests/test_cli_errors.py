@@ -219,3 +219,10 @@ def test_a_signal_during_a_timer_callback_stops_the_node_quietly(signal_name):
     result = subprocess.run([sys.executable, "-c", INTERRUPTED_IN_A_TIMER, signal_name], capture_output=True,
                             text=True, env=ros_test_environment(fresh_domain_id()), timeout=60)
     assert (result.returncode, result.stdout, result.stderr) == (130, "interrupted\n", "")
+
+
+@pytest.mark.parametrize("command", [["sim"], ["run"], ["world"]])
+def test_view_wait_without_the_view_is_a_usage_error(command):
+    """--view-wait waits for a viewer of --view: alone it would silently wait for nothing."""
+    result = formic(*command, *TINY_WORLD, "--view-wait")
+    assert result.exit_code == 2 and "--view-wait waits for a viewer of the live view: add --view" in result.output

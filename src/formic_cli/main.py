@@ -12,8 +12,8 @@ import click
 from formic_world.config import TEST_EPISODE_STEPS
 from formic_world.errors import InputError
 
-from .options import (fresh_option, json_option, model_option, open_live_view, preset_option, scenario_from,
-                      team_options, view_options, world_config_from, world_option_group, world_options)
+from .options import (fresh_option, json_option, live_view_port, model_option, open_live_view, preset_option,
+                      scenario_from, team_options, view_options, world_config_from, world_option_group, world_options)
 from .summary import click_errors, emit, emit_json, print_episode_summary
 
 
@@ -55,10 +55,11 @@ def sim(policy, model, greedy, scenario_file, out, gif, live_view, view_port, vi
     from formic_runtime.threads import configure_threads
     from formic_world.render import render_frame, render_frames_to_file, save_png
 
+    port = live_view_port(live_view, view_port, view_wait)
     scenario = scenario_from(scenario_file, world_kw)
     configure_threads()
     frames = []
-    view = open_live_view(view_port, wait=view_wait) if live_view else None
+    view = open_live_view(port, wait=view_wait) if port is not None else None
 
     def on_step(w) -> None:
         if gif:

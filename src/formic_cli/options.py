@@ -140,6 +140,13 @@ def view_options():
     )
 
 
+def live_view_port(live_view: bool, view_port: int, view_wait: bool) -> int | None:
+    """The live view's port, or None without --view (--view-wait alone would wait for nothing)."""
+    if view_wait and not live_view:
+        raise click.UsageError("--view-wait waits for a viewer of the live view: add --view")
+    return view_port if live_view else None
+
+
 def open_live_view(port: int, wait: bool = False):
     """Start the live view and print its address (on stderr: stdout may carry --json);
     with ``wait``, return once a viewer has subscribed."""

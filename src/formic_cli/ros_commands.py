@@ -11,9 +11,9 @@ import sys
 import click
 
 from .options import (WORLD_OPTION_NAMES, domain_option, fresh_option, greedy_option, hosts_network_option,
-                      json_option, model_option, option_group, preset_option, ros_options, ros_run_dir_option,
-                      scenario_from, team_options, train_config_option, training_config, view_options,
-                      world_options)
+                      json_option, live_view_port, model_option, option_group, preset_option, ros_options,
+                      ros_run_dir_option, scenario_from, team_options, train_config_option, training_config,
+                      view_options, world_options)
 from .robot_commands import robot, robot_run_options, robots_sim, run_robot_options, world_robot_options
 from .summary import click_errors, emit, emit_json, print_episode_summary
 
@@ -103,7 +103,7 @@ def run(scenario_file, external, live_view, view_port, view_wait, as_json, **fie
     scenario = scenario_from(scenario_file, fields)  # takes the world options out: RunOptions' fields remain
     options = RunOptions(scenario=scenario, external=_parse_external(external), robots=robots, **fields,
                          progress=not as_json and sys.stderr.isatty(),
-                         view_port=view_port if live_view else None, view_wait=live_view and view_wait)
+                         view_port=live_view_port(live_view, view_port, view_wait), view_wait=view_wait)
     if live_view:  # served by the world process (formic_view), announced here where the user looks
         from formic_view import DEFAULT_HOST, address, announcement
 
@@ -166,8 +166,8 @@ def world(scenario_file, domain_id, deadline_ms, stay, train_config, episodes, f
     from formic_ros.world_options import WorldNodeOptions
 
     world_kw = {name: fields.pop(name) for name in WORLD_OPTION_NAMES}  # the rest are WorldNodeOptions'
-    options = WorldNodeOptions(deadline_s=deadline_ms / 1e3, view_port=view_port if live_view else None,
-                               view_wait=live_view and view_wait, **fields)
+    options = WorldNodeOptions(deadline_s=deadline_ms / 1e3, view_port=live_view_port(live_view, view_port, view_wait),
+                               view_wait=view_wait, **fields)
     if train_config:
         from formic_trainer.config import load_train_config
 

@@ -10,8 +10,8 @@ from pathlib import Path
 import click
 
 from .options import (PROCESS_DOMAIN_HELP, domain_option, fresh_option, hosts_network_option, json_option,
-                      open_live_view, preset_option, ros_options, ros_run_dir_option, train_config_option,
-                      training_config, view_options)
+                      live_view_port, open_live_view, preset_option, ros_options, ros_run_dir_option,
+                      train_config_option, training_config, view_options)
 from .summary import click_errors, emit, emit_json
 
 _AGENT_PART = re.compile(r"(?<=/)agent_\d+(?=/|$)")
@@ -99,6 +99,7 @@ def replay_command(recording, verify, republish, repair, live_view, view_port, v
 
     if verify + republish + repair + live_view > 1:
         raise click.UsageError("choose one of --verify, --republish, --view, --repair")
+    live_view_port(live_view, view_port, view_wait)
     with click_errors(RecordingError, ValueError, OSError):
         if live_view:
             from formic_record.replay import view_recording
