@@ -242,9 +242,9 @@ class WorldNode(Node):
 
         opts, world, cfg = self.options, self.world, self.scenario.config
         self._wait_for_subscribers(executor)
-        if self.view is not None and self.options.view_wait and not self.view.subscribed.is_set():
+        if self.view is not None and self.options.view_wait and not self.view.wait_for_viewer(0):
             self.get_logger().info(f"waiting for a viewer to subscribe at {self.view.url}")
-            while not self.view.subscribed.is_set():  # spinning: the agents' discovery goes on meanwhile
+            while not self.view.wait_for_viewer(0):  # spinning: the agents' discovery goes on meanwhile
                 executor.spin_once(timeout_sec=0.1)
         with self.core_lock:
             self.result = world.last_result if world.t == 0 else world.reset(self.scenario)  # a new world is reset
