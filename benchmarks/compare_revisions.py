@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """Before/after speed of two revisions: `formic bench world`, `bench ros` and `bench policy` at
-128 agents, and training on the paper recipe's workload (benchmarks/training_speed.py), run in turn (before, after, before, ...) so that a drifting machine hits both alike,
-and the median of each figure with the after/before ratio. Run it on a quiet machine.
+128 agents, and training on the paper recipe's workload (benchmarks/training_speed.py), run in
+turn (before, after, before, ...) so that a drifting machine hits both alike, and the median of
+each figure with the after/before ratio. Run it on a quiet machine.
 
     .venv/bin/python benchmarks/compare_revisions.py 2fc1868 --rounds 3
 

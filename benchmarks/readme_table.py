@@ -41,13 +41,15 @@ def main() -> None:
     rows = []
     world, _ = formic("bench", "world", "--json")
     rows.append(("core, 128x128, random valid actions, observations included", "`formic bench world`",
-                 " / ".join(f"{r['steps_per_s']:,.0f}" for r in world["results"]) + " steps/s with 16 / 32 / 64 / 128 agents"))
+                 " / ".join(f"{r['steps_per_s']:,.0f}" for r in world["results"])
+                 + " steps/s with 16 / 32 / 64 / 128 agents"))
     policy, _ = formic("bench", "policy", "--network", "cpu-feedback", "--json")
     rows.append(("inference, `cpu-feedback` net, batch 128, 2 threads", "`formic bench policy --network cpu-feedback`",
                  f"{policy['inference_agent_steps_per_s']:,.0f} agent-steps/s"))
     for threads in (1, 2):
         training, _ = run([str(ROOT / "benchmarks" / "training_speed.py"), "--threads", str(threads), "--json"])
-        rows.append((f"training end to end, the paper recipe's last stage (352 agents, 64 learning), {threads} thread(s)",
+        rows.append((f"training end to end, the paper recipe's last stage (352 agents, 64 learning), "
+                     f"{threads} thread(s)",
                      f"`benchmarks/training_speed.py --threads {threads}`",
                      f"{training['agent_steps_per_s']:,.0f} agent-steps/s"))
     ros, _ = formic("bench", "ros", "--agents", "128", "--json")
@@ -55,7 +57,8 @@ def main() -> None:
         rows.append((f"ROS lockstep, 128 agents on 64x64, {result['transport']}, random policy",
                      "`formic bench ros --agents 128`", f"{result['steps_per_s']:,.0f} steps/s"))
     sim, sim_wall = formic("sim", *EPISODE)
-    rows.append(("1024-step episode of the shipped model, 128 agents, one process", "`formic sim " + " ".join(EPISODE[:-1]) + "`",
+    rows.append(("1024-step episode of the shipped model, 128 agents, one process",
+                 "`formic sim " + " ".join(EPISODE[:-1]) + "`",
                  f"{sim_wall:.1f} s, food {sim['food']:g}"))
     for transport in ("batched", "per-agent"):
         result, wall = formic("run", *EPISODE, "--transport", transport)

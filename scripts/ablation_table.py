@@ -68,7 +68,8 @@ def main() -> None:
     paper_reference = PAPER_ABLATION.get(rows[0][0])
     teams = " | ".join(str(n) for n in PAPER_TEAMS)
     counts = sorted({len(food[n]) for _, food, _ in rows for n in PAPER_TEAMS})
-    print(f"Food in {PAPER_STEPS} steps, mean ± standard error over {'/'.join(map(str, counts))} scenarios per team size.")
+    print(f"Food in {PAPER_STEPS} steps, mean ± standard error over {'/'.join(map(str, counts))} "
+          "scenarios per team size.")
     print()
     print(f"| variant | model | {teams} | ÷ first row | paper: {teams} | paper ÷ first row |")
     print("|---|---|" + "---:|" * (2 * len(PAPER_TEAMS) + 2))

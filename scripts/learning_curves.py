@@ -61,7 +61,8 @@ def stages(run_dirs: tuple[Path, ...], until: dict[str, int], overlay: bool = Fa
 @click.argument("run_dirs", nargs=-1, required=True, type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.option("--out", required=True, type=click.Path(dir_okay=False))
 @click.option("--smooth", default=10, show_default=True, help="Moving-average window (logged points).")
-@click.option("--overlay", is_flag=True, help="Draw every run from episode 0 (comparison), not one after the other (stages).")
+@click.option("--overlay", is_flag=True,
+              help="Draw every run from episode 0 (comparison), not one after the other (stages).")
 @click.option("--until", "untils", multiple=True, metavar="RUN=EPISODE",
               help="Draw run RUN (its directory's name) only up to EPISODE: the part of a stage a model used.")
 def main(run_dirs: tuple[Path, ...], out: str, smooth: int, overlay: bool, untils: tuple[str, ...]) -> None:

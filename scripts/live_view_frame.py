@@ -93,7 +93,8 @@ def draw(got: dict[str, list], out: Path, title: str) -> None:
     ax.set_xticks([]), ax.set_yticks([])
 
     plot = fig.add_axes((0.66, 0.42, 0.32, 0.46))
-    plot.plot([s["sim_time"] for s in states], [s["score"] for s in states], label="food delivered (/formic/score.data)")
+    plot.plot([s["sim_time"] for s in states], [s["score"] for s in states],
+              label="food delivered (/formic/score.data)")
     plot.plot([s["sim_time"] for s in states], [s["food_carried"] for s in states],
               label="food carried (/formic/state.food_carried)")
     plot.set_xlabel("sim time [s]"), plot.legend(fontsize=8), plot.grid(alpha=0.3)

@@ -63,7 +63,8 @@ def main(run_dir: Path, stages: str) -> None:
     configure_threads(1)
     wanted = {name for name in stages.split(",") if name}
     identity = run_identity(run_dir)
-    ends = [(name, weights) for name, weights in stage_ends(run_dir, identity) if not wanted or name.split(".")[0] in wanted]
+    ends = [(name, weights) for name, weights in stage_ends(run_dir, identity)
+            if not wanted or name.split(".")[0] in wanted]
     if not ends:
         raise click.ClickException(f"{run_dir}: no started stage{' among ' + stages if wanted else ''}")
     folder = run_dir / "validation"

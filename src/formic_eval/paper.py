@@ -172,7 +172,8 @@ def markdown_report(cells: list[dict], run: dict) -> str:
             )
     else:
         lines.append(
-            f"No cell of this run matches a published setting ({PAPER_SIZE}x{PAPER_SIZE}, {PAPER_STEPS} steps, 16-128 agents)."
+            f"No cell of this run matches a published setting ({PAPER_SIZE}x{PAPER_SIZE}, {PAPER_STEPS} steps, "
+            "16-128 agents)."
         )
     lines += [
         "",

@@ -4,7 +4,8 @@ it through a list of waypoints (cell centres) and stops on the last within a tol
 Turn on the spot while the target is far off the heading, then drive with a proportional
 heading correction, slowing as the heading error grows and as the waypoint nears (routes turn
 at waypoints): speed and turn rate follow a braking profile (``sqrt(2 a d)``) far away and a
-proportional law close by, so the robot stops on the spot instead of creeping up to it. Passing a waypoint needs no stop: it counts as reached within ``pass_radius``. Every command respects the
+proportional law close by, so the robot stops on the spot instead of creeping up to it. Passing
+a waypoint needs no stop: it counts as reached within ``pass_radius``. Every command respects the
 speed limits, so the robot's own acceleration limits are the only thing between command and motion.
 """
 

@@ -84,7 +84,8 @@ class Claim:
 
     def ready(self) -> bool:
         """Whether the driver may answer: the world confirmed the claim, and the world and the
-        recorders it waits for have matched every action publisher (after ``RECORDER_WAIT_S`` it answers anyway, warned)."""
+        recorders it waits for have matched every action publisher (after ``RECORDER_WAIT_S`` it
+        answers anyway, warned)."""
         now = time.monotonic()
         if self._ready or self.confirmed_at is None or now - self._checked_at < READY_CHECK_S:
             return self._ready
@@ -119,7 +120,8 @@ class Ownership:
         self.claims: dict[str, dict] = {}  # token -> claim
         self.owner_of: dict[int, str] = {}  # agent -> token
         self.refused: dict[str, dict] = {}  # token -> refused claim (re-examined)
-        self.outsiders: dict[str, dict] = {}  # token -> claim refused for good, with its reason "why" (told on ``owners``)
+        # token -> claim refused for good, with its reason "why" (told on ``owners``)
+        self.outsiders: dict[str, dict] = {}
         self.batch_topics: set[str] = set()  # the owners' own batch topics (subscribed)
         self.rejected = None  # the inbox's rejection counter (set by the world per episode)
         self.recorders = 0  # recorders the world waits for: drivers wait for them too
@@ -203,9 +205,10 @@ class Ownership:
                 self.owner_of[a] = claim["token"]
         if taken:
             if claim["token"] not in self.refused:
+                drivers = sorted({self.claims[self.owner_of[a]]["owner"] for a in taken})
                 self.node.get_logger().error(
-                    f"{claim['owner']} claims agents {taken}, already driven by "
-                    f"{sorted({self.claims[self.owner_of[a]]['owner'] for a in taken})}: claim refused, first owner kept")
+                    f"{claim['owner']} claims agents {taken}, already driven by {drivers}: "
+                    "claim refused, first owner kept")
             self.refused[claim["token"]] = claim
         else:
             self.refused.pop(claim["token"], None)
@@ -254,7 +257,8 @@ class Ownership:
         silent (for the "nobody joined" error), or None when no driver claimed anything (then
         discovery is the likely cause)."""
         reasons = [f"refused a claim: {claim['why']}" for claim in self.outsiders.values()]
-        reasons += [f"refused {claim['owner']}'s claim: its agents were already driven" for claim in self.refused.values()]
+        reasons += [f"refused {claim['owner']}'s claim: its agents were already driven"
+                    for claim in self.refused.values()]
         silent = {claim["owner"] for claim in self.claims.values()} - {c["owner"] for c in self.refused.values()}
         reasons += [f"{owner} claimed agents but did not answer" + ("" if self._alive(owner) else
                                                                     " (it has left the graph)")
@@ -302,7 +306,8 @@ class Ownership:
         reader = self.agent_readers.get(via)
         if reader is None or reader.get_publisher_count() <= 1:  # the common case, checked on every action
             return False
-        told = sum(agent in c["agents"] and not c["actions"] for c in (*self.refused.values(), *self.outsiders.values()))
+        refused = (*self.refused.values(), *self.outsiders.values())
+        told = sum(agent in c["agents"] and not c["actions"] for c in refused)
         if reader.get_publisher_count() <= 1 + told:
             return False
         if self.rejected is not None:

@@ -125,7 +125,8 @@ class RobotBridge:
             return
         if goal.step == RobotGoal.PLACEMENT and self.settings.odom_origin == "start" and self.origin is None:
             self.origin = (goal.xs[-1], goal.ys[-1], 0.0)  # the robot was switched on at its start cell, facing east
-            self.log.info(f"odometry origin: the start cell's centre ({goal.xs[-1]:.3f}, {goal.ys[-1]:.3f}), facing east")
+            self.log.info(f"odometry origin: the start cell's centre ({goal.xs[-1]:.3f}, {goal.ys[-1]:.3f}), "
+                          "facing east")
         self.goal, self.outcome = goal, None
         self.frame = MetricFrame(goal.height, goal.width, goal.cell_size, goal.origin_x, goal.origin_y)
         self.received_at = time.monotonic()

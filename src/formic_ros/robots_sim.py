@@ -64,7 +64,8 @@ class RobotsSim(Node):
         self.odom_pubs = {a: self.create_publisher(Odometry, settings.odom.format(agent=a), SENSOR_WRITER)
                           for a in self.ids}
         for a in self.ids:
-            self.create_subscription(Twist, settings.cmd_vel.format(agent=a), lambda m, a=a: self._on_cmd(a, m), COMMAND)
+            self.create_subscription(Twist, settings.cmd_vel.format(agent=a),
+                                     lambda m, a=a: self._on_cmd(a, m), COMMAND)
         self.tf_pub = self.create_publisher(TFMessage, "/tf", qos.reliable(100))
         scenario_topic = topics.full_name(namespace, topics.SCENARIO)
         self.create_subscription(ScenarioDescription, scenario_topic, self._on_scenario, qos.LATCHED)

@@ -163,7 +163,8 @@ def parse_overrides(pairs: tuple[str, ...] | list[str]) -> dict:
             try:
                 out[key] = tuple((int(lo), int(hi)) for lo, hi in (r.split("-") for r in text.split(",")))
             except ValueError:
-                raise ValueError(f"world_sizes expects MIN-MAX side ranges, one per team (40-96,64-128), got {text!r}") from None
+                raise ValueError("world_sizes expects MIN-MAX side ranges, one per team (40-96,64-128), "
+                                 f"got {text!r}") from None
         elif isinstance(current, tuple):
             raise ValueError(f"{key} cannot be set from the command line")
         else:

@@ -448,7 +448,8 @@ class _Run:
 
     def trains_with_pheromones(self) -> bool:
         """Whether the recipe's agents see the pheromone channel (every stage does the same)."""
-        seen = {stage_config(self.recipe, i, self.run_dir, self.seed).pheromones for i in range(len(self.recipe.stages))}
+        stages = range(len(self.recipe.stages))
+        seen = {stage_config(self.recipe, i, self.run_dir, self.seed).pheromones for i in stages}
         if len(seen) > 1:
             raise RecipeError("stages differ in `pheromones`: the validation cannot test them alike")
         return seen.pop()

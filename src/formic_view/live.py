@@ -15,8 +15,9 @@ live channel                schema                      recorded counterpart
 ==========================  ==========================  =====================================
 
 Frames: ``map``, one unit a cell, x east along the columns, y north (row 0 of the world is the
-top): the recorded map and markers' layout, which are in metres (the world's ``--cell-size``). Message times are sim time (step x ``dt``), so the timeline
-and plots read the same as a recording's ``/clock``.
+top): the recorded map and markers' layout, which are in metres (the world's ``--cell-size``).
+Message times are sim time (step x ``dt``), so the timeline and plots read the same as a
+recording's ``/clock``.
 
 The run must not wait for the viewer: :meth:`LiveView.publish` returns at once unless the
 last publication is ``1 / max_hz`` seconds old (wall clock), and builds nothing for channels

@@ -107,7 +107,7 @@ class Scenario:
                     ResourceSpec(int(r), int(c), int(d), int(k)) for r, c, d, k in data["resources"]
                 ),
                 agents=tuple(
-                    AgentStart(int(r), int(c), bool(l), int(q)) for r, c, l, q in data["agents"]
+                    AgentStart(int(r), int(c), bool(loaded), int(q)) for r, c, loaded, q in data["agents"]
                 ),
                 wipeout_starts=tuple(int(s) for s in data["wipeout_starts"]),
             )
