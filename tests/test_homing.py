@@ -1,4 +1,4 @@
-"""scripts/homing.py: trips, deliveries and loads never delivered, counted on a hand-built world."""
+"""analysis/homing.py: trips, deliveries and loads never delivered, counted on a hand-built world."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from conftest import agent, build_world
 
 from formic_world.geometry import EAST, JOIN, SOUTH, WEST
 from formic_world.scenario import ResourceSpec
-from scripts.homing import TripCounter
+from analysis.homing import TripCounter
 
 
 def test_a_pickup_walk_and_deposit_is_one_loaded_trip_and_a_lost_load_counts_from_step_0():

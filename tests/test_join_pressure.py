@@ -1,4 +1,4 @@
-"""scripts/join_pressure.py: each loss term's first-order effect on P(JOIN) is what a small step
+"""analysis/join_pressure.py: each loss term's first-order effect on P(JOIN) is what a small step
 down that term's gradient really does."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import torch
 
 from formic_agent.checkpoint import load_network
 from formic_cli.options import training_config
-from scripts.join_pressure import CONTROL, SOURCES, effects, join_probability_gradient, rollout_batches, term_gradients
+from analysis.join_pressure import CONTROL, SOURCES, effects, join_probability_gradient, rollout_batches, term_gradients
 
 SMALL = ("teams=8", "world_sizes=20-20", "episode_steps=96", "rollout_steps=48")
 

@@ -1,4 +1,4 @@
-"""scripts/learning_curves.py: stages drawn one after the other, cut where a model stopped using them."""
+"""analysis/learning_curves.py: stages drawn one after the other, cut where a model stopped using them."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import pytest
 from click.testing import CliRunner
 from torch.utils.tensorboard import SummaryWriter
 
-from scripts.learning_curves import FOOD_MEAN, main, stages
+from analysis.learning_curves import FOOD_MEAN, main, stages
 
 
 def write_run(directory, food: dict[str, list[tuple[int, float]]]) -> None:

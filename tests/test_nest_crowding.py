@@ -1,4 +1,4 @@
-"""scripts/nest_crowding.py: crowding at the nest, counted on a hand-built world."""
+"""analysis/nest_crowding.py: crowding at the nest, counted on a hand-built world."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from conftest import agent, build_world
 
 from formic_world.geometry import JOIN, NORTH, SOUTH
 from formic_world.scenario import ResourceSpec
-from scripts.nest_crowding import CrowdCounter
+from analysis.nest_crowding import CrowdCounter
 
 
 def test_crowd_queue_and_held_docks_are_counted_exactly():
