@@ -3,8 +3,8 @@
 
     .venv/bin/python scripts/paper_tables.py eval/tables [--seeds eval/recipe-paper/seed1 eval/recipe-paper/seed2]
         [--row-seeds eval/tables-seed2]
-    .venv/bin/python scripts/paper_tables.py --write README.md   # the README's block, from the defaults
-    .venv/bin/python scripts/paper_tables.py --check README.md   # exit 1 if the README is stale
+    .venv/bin/python scripts/paper_tables.py --write docs/results.md   # the results page's block, from the defaults
+    .venv/bin/python scripts/paper_tables.py --check docs/results.md   # exit 1 if the page is stale
 
 ROOT holds one folder per row, named by its recipe switch (``ROOT/no-curriculum``, ...), and
 ``ROOT/reference``: the unchanged recipe at the same budget. Each holds ``formic eval`` of that
@@ -17,7 +17,7 @@ such a row gets a line per seed and one for the mean over its seeds (per scenari
 mean food). Where such a folder holds a reference too, every row is relative to the reference
 seeds' mean, and their spread is printed as the noise scale at the tables' budget. A row not
 evaluated yet says so. The defaults are the
-README's: ``eval/tables``, every ``eval/recipe-paper/seedS`` and every ``eval/tables-seedS`` folder.
+results page's (docs/results.md): ``eval/tables``, every ``eval/recipe-paper/seedS`` and every ``eval/tables-seedS`` folder.
 """
 
 from __future__ import annotations

@@ -1,8 +1,12 @@
 #!/usr/bin/env python3
-"""The README's results block, rebuilt from the evaluation folders by one command.
+"""The results page's block and the README's summary of it, rebuilt from the evaluation folders
+by one command.
 
-    .venv/bin/python scripts/readme_results.py --write README.md   # replace the block in place
-    .venv/bin/python scripts/readme_results.py --check README.md   # exit 1 if the README is stale
+    .venv/bin/python scripts/readme_results.py --write docs/results.md README.md   # replace both in place
+    .venv/bin/python scripts/readme_results.py --check docs/results.md README.md   # exit 1 if one is stale
+
+Each file named gets the blocks it holds: the full results (``results`` markers, docs/results.md)
+and the summary (``summary`` markers, README.md: the first Fig. 5 setting's table and the figure).
 
 The shipped model's episodes come from ``--model-eval`` (its ``formic`` records, every variant);
 the baselines' and the planner's from ``--baselines-eval`` (every other algorithm), on the same
@@ -17,13 +21,14 @@ names its model by file and digest.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
-from formic_eval.markdown_block import add_block_options, publish  # noqa: E402
+from formic_eval.markdown_block import write_or_check  # noqa: E402
 from formic_eval.matrix import file_digest  # noqa: E402
 from formic_eval.paired import PairedDifference, compare, layout_key  # noqa: E402
 from formic_eval.paper import (FIG5_SETTINGS, PAPER_SIZE, PAPER_STEPS, PAPER_TEAMS, RIVALS,  # noqa: E402
@@ -33,6 +38,7 @@ from formic_eval.results import aggregate  # noqa: E402
 from formic_eval.runner import folder_episodes  # noqa: E402
 
 BEGIN, END = "<!-- results:begin (scripts/readme_results.py) -->", "<!-- results:end -->"
+SUMMARY_BEGIN, SUMMARY_END = "<!-- summary:begin (scripts/readme_results.py) -->", "<!-- summary:end -->"
 # rows of the main table, in order: (algorithm, variant)
 ROWS = [("formic", ""), ("formic", "no-pheromones"), ("planner", ""), ("csaf11", ""), ("csaf", ""),
         ("cardinality", ""), ("csaf11-ref", ""), ("csaf-ref", ""), ("random", "")]
@@ -51,11 +57,11 @@ def percent_less(d: PairedDifference) -> str:
     return f"{-mean:.0f}% [{-high:.0f}, {-low:.0f}] (n={d.n})"
 
 
-def main_table(cells: list[dict]) -> list[str]:
+def main_table(cells: list[dict], settings=FIG5_SETTINGS) -> list[str]:
     by_key = {(c["algorithm"], c["variant"], c["env"], c["obstacles"], c["agents"]): c for c in cells}
     lines = ["| setting | algorithm | " + " | ".join(f"{n} agents" for n in PAPER_TEAMS) + " |",
              "|---|---|" + "---|" * len(PAPER_TEAMS)]
-    for env, obstacles in FIG5_SETTINGS:
+    for env, obstacles in settings:
         first = True
         for algorithm, variant in ROWS:
             row = [by_key.get((algorithm, variant, env, obstacles, n)) for n in PAPER_TEAMS]
@@ -175,29 +181,45 @@ def paper_ratio_line(cells: list[dict]) -> list[str]:
              "|---|" + "---|" * len(PAPER_TEAMS)] + lines)
 
 
-def block(model_eval: Path, baselines_eval: Path, model_file: Path, figure: Path, draw: bool) -> list[str]:
-    """The results block's lines; ``draw``: (re)draw its figure too."""
+def evidence(model_eval: Path, baselines_eval: Path, model_file: Path) -> tuple[list[dict], list[dict], str]:
+    """The shipped model's episodes, every other algorithm's, and the model's digest (checked:
+    the model's folder holds episodes of ``model_file`` only)."""
     model = [r for r in folder_episodes(model_eval) if r["algorithm"] == "formic"]
     baselines = [r for r in folder_episodes(baselines_eval) if r["algorithm"] != "formic"]
     digests = sorted({r["model"] for r in model})
     if digests != [file_digest(model_file)]:
         raise SystemExit(f"{model_eval} holds episodes of model(s) {digests}, not of {model_file} "
                          f"({file_digest(model_file)}): evaluate the shipped model there first")
-    cells = aggregate([r for r in model + baselines if r["size"] == PAPER_SIZE and r["steps"] == PAPER_STEPS])
-    if draw:
-        plot_food_vs_team([c for c in cells if c["variant"] == ""], figure)
-    rel = lambda p: Path(p).resolve().relative_to(ROOT).as_posix()  # noqa: E731
+    return model, baselines, digests[0]
+
+
+def paper_cells(model: list[dict], baselines: list[dict]) -> list[dict]:
+    """Every algorithm's cells in the paper's world size and episode length."""
+    return aggregate([r for r in model + baselines if r["size"] == PAPER_SIZE and r["steps"] == PAPER_STEPS])
+
+
+def rel(path: Path) -> str:
+    return Path(path).resolve().relative_to(ROOT).as_posix()
+
+
+def provenance(model_file: Path, digest: str, model_eval: Path, baselines_eval: Path) -> str:
+    return (f"ForMIC here is `{rel(model_file)}` (digest `{digest}`), its episodes in `{rel(model_eval)}/`; "
+            f"every other algorithm's in `{rel(baselines_eval)}/`, on the same stored scenarios. Food deposited in "
+            f"{PAPER_STEPS} steps on {PAPER_SIZE}x{PAPER_SIZE} worlds, mean ± std over the n scenarios; "
+            "(the paper's value); "
+            "[food ÷ the centralized planner's on the same scenarios].")
+
+
+def block(model: list[dict], baselines: list[dict], cells: list[dict], head: str, figure_link: str) -> list[str]:
+    """The results page's block: every Fig. 5 cell, the figure, the ratios to the paper, the paired
+    comparisons and the smaller worlds."""
     small_worlds = small_world_tables(model, baselines)
     return [
-        f"ForMIC here is `{rel(model_file)}` (digest `{digests[0]}`), its episodes in `{rel(model_eval)}/`; "
-        f"every other algorithm's in `{rel(baselines_eval)}/`, on the same stored scenarios. Food deposited in "
-        f"{PAPER_STEPS} steps on {PAPER_SIZE}x{PAPER_SIZE} worlds, mean ± std over the n scenarios; "
-        "(the paper's value); "
-        "[food ÷ the centralized planner's on the same scenarios].",
+        head,
         "",
         *main_table(cells),
         "",
-        f"![food versus team size]({rel(figure)})",
+        f"![food versus team size]({figure_link})",
         "",
         "ForMIC's food divided by the paper's ForMIC (the paper's values are read from its plots, ±~10):",
         "",
@@ -212,6 +234,11 @@ def block(model_eval: Path, baselines_eval: Path, model_file: Path, figure: Path
     ]
 
 
+def summary(cells: list[dict], head: str, figure_link: str) -> list[str]:
+    """The README's summary: the first Fig. 5 setting's table and the figure."""
+    return [head, "", *main_table(cells, FIG5_SETTINGS[:1]), "", f"![food versus team size]({figure_link})"]
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--model-eval", type=Path, default=ROOT / "eval" / "recipe-paper" / "seed3")
@@ -219,10 +246,34 @@ def main() -> int:
     parser.add_argument("--model", type=Path, default=ROOT / "models" / "formic_recipe.pt")
     parser.add_argument("--figure", type=Path,
                         default=ROOT / "eval" / "recipe-paper" / "seed3" / "readme_food_vs_team.png")
-    add_block_options(parser, "results")
+    action = parser.add_mutually_exclusive_group()
+    action.add_argument("--write", type=Path, nargs="+", metavar="FILE",
+                        help="replace the results and summary blocks these files hold")
+    action.add_argument("--check", type=Path, nargs="+", metavar="FILE",
+                        help="exit 1 if a block these files hold is stale")
     args = parser.parse_args()
-    lines = block(args.model_eval, args.baselines_eval, args.model, args.figure, draw=args.check is None)
-    return publish(lines, BEGIN, END, args, "scripts/readme_results.py")
+    model, baselines, digest = evidence(args.model_eval, args.baselines_eval, args.model)
+    cells = paper_cells(model, baselines)
+    if args.check is None:
+        plot_food_vs_team([c for c in cells if c["variant"] == ""], args.figure)
+    head = provenance(args.model, digest, args.model_eval, args.baselines_eval)
+    targets = args.write or args.check
+    if targets is None:
+        print("\n".join(block(model, baselines, cells, head, rel(args.figure))))
+        return 0
+    status = 0
+    for target in targets:
+        text = target.read_text()
+        link = os.path.relpath(args.figure.resolve(), target.resolve().parent)
+        blocks = [(BEGIN, END, lambda: block(model, baselines, cells, head, link)),
+                  (SUMMARY_BEGIN, SUMMARY_END, lambda: summary(cells, head, link))]
+        found = [(begin, end, lines) for begin, end, lines in blocks if begin in text]
+        if not found:
+            raise SystemExit(f"{target} holds no block of scripts/readme_results.py ({BEGIN} or {SUMMARY_BEGIN})")
+        for begin, end, lines in found:
+            status |= write_or_check(target, begin, end, "\n".join([begin, *lines(), end]),
+                                     check=args.check is not None, command="scripts/readme_results.py")
+    return status
 
 
 if __name__ == "__main__":

@@ -424,6 +424,36 @@ def test_a_misspelled_inline_option_is_found() -> None:
     assert reference_problem(["replay", "DIR", "--verify"]) is None
 
 
+# ------------------------------------------------------------------- the docs state the present
+README_MAX_LINES = 300
+# an internal work-log number ("issue 25", "sessions 11-17", "(session 12)"): no outside reader can
+# look one up; only the changelog keeps dated entries
+WORK_LOG = re.compile(r"\b(?:issue|session|PR)s?\s+#?\d+", re.IGNORECASE)
+WORK_LOG_ALLOWED = {"docs/changelog.md"}
+
+
+def work_log_citations(path: str, text: str) -> list[str]:
+    """``path:line: match`` for each work-log citation in ``text`` (one may wrap a line)."""
+    return [f"{path}:{text.count(chr(10), 0, m.start()) + 1}: {' '.join(m.group().split())!r}"
+            for m in WORK_LOG.finditer(text)]
+
+
+def test_no_work_log_citations_in_readme_or_docs() -> None:
+    found = [hit for path in doc_files() if (rel := str(path.relative_to(ROOT))) not in WORK_LOG_ALLOWED
+             for hit in work_log_citations(rel, path.read_text(encoding="utf-8"))]
+    assert not found, "say the fact, not the work log's number:\n" + "\n".join(found)
+
+
+def test_work_log_citations_are_found() -> None:
+    text = "fixed (issue 25), the default of sessions\n11-17 and Issue #3; not an issue of 4 or 2 sessions"
+    assert work_log_citations("x.md", text) == ["x.md:1: 'issue 25'", "x.md:1: 'sessions 11'", "x.md:2: 'Issue #3'"]
+
+
+def test_readme_is_short() -> None:
+    lines = len((ROOT / "README.md").read_text(encoding="utf-8").splitlines())
+    assert lines <= README_MAX_LINES, f"README.md has {lines} lines: move details to docs/ (at most {README_MAX_LINES})"
+
+
 def test_coverage(capsys: pytest.CaptureFixture) -> None:
     """Print what each block and inline span gets; every block has a check."""
     lines = [f"{b.where:24} {b.lang or '?':7} {mode(b)}" for b in BLOCKS]

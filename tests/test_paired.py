@@ -60,17 +60,44 @@ def test_a_scenario_run_twice_is_an_error():
         compare(twice, [record("csaf11", 8, 1)])
 
 
-def test_readme_results_block_is_current():
-    """The README's results block is what scripts/readme_results.py builds from the committed
-    evaluation folders (rebuild it with --write after an evaluation)."""
+def test_results_page_and_readme_summary_are_current():
+    """docs/results.md's results block and README.md's summary block are what
+    scripts/readme_results.py builds from the committed evaluation folders, byte for byte
+    (rebuild both with --write after an evaluation)."""
     import subprocess
     import sys
     from pathlib import Path
 
     root = Path(__file__).resolve().parents[1]
-    done = subprocess.run([sys.executable, str(root / "scripts" / "readme_results.py"), "--check", str(root / "README.md")],
+    page, readme = root / "docs" / "results.md", root / "README.md"
+    assert "<!-- results:begin (scripts/readme_results.py) -->" in page.read_text()
+    assert "<!-- summary:begin (scripts/readme_results.py) -->" in readme.read_text()
+    done = subprocess.run([sys.executable, str(root / "scripts" / "readme_results.py"), "--check", str(page), str(readme)],
                           capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
+
+
+def test_a_stale_readme_summary_fails_the_check(tmp_path):
+    """--check compares the summary byte for byte: one changed number in a copy of the README fails
+    it, and names the command that rebuilds it."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    text = (root / "README.md").read_text()
+    start = text.index("<!-- summary:begin (scripts/readme_results.py) -->")
+    cell = text.index(" ± ", start)
+    copy = tmp_path / "README.md"
+    # the figure's link is relative to the page: place the (not drawn) figure as it is beside the README
+    figure = tmp_path / "eval" / "recipe-paper" / "seed3" / "readme_food_vs_team.png"
+    check = [sys.executable, str(root / "scripts" / "readme_results.py"), "--figure", str(figure), "--check", str(copy)]
+    copy.write_text(text)
+    assert subprocess.run(check, capture_output=True, text=True, timeout=120).returncode == 0
+    copy.write_text(text[:cell] + "0" + text[cell:])
+    done = subprocess.run(check, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 1
+    assert f"run scripts/readme_results.py --write {copy}" in done.stderr
 
 
 def test_readme_paired_table_has_the_trail_variants_where_they_were_run():

@@ -194,8 +194,8 @@ def test_eval_tables_plans_each_finished_run_as_its_rows_are_tested(tmp_path):
         assert context.params["workers"] == 3 and context.params["scenarios"] == "20"
 
 
-def test_readme_tables_block_is_current():
-    """The README's Tables I-III block is what scripts/paper_tables.py builds from the committed
+def test_results_page_tables_block_is_current():
+    """The results page's Tables I-III block is what scripts/paper_tables.py builds from the committed
     evaluation folders (its defaults: eval/tables and every eval/recipe-paper/seedS)."""
-    done = run_tables("--check", str(ROOT / "README.md"))
+    done = run_tables("--check", str(ROOT / "docs" / "results.md"))
     assert done.returncode == 0, done.stderr

@@ -270,6 +270,24 @@ def test_invalid_scenarios_are_rejected_with_a_reason(tmp_path, change, message)
         Scenario.load(write(tmp_path, json.dumps(data)))
 
 
+@pytest.mark.parametrize("field, limit", [("height", 2048), ("width", 2048), ("n_agents", 65_536),
+                                          ("view_size", 63), ("episode_steps", 1_000_000), ("queue_len", 64)])
+def test_a_world_over_a_limit_is_refused_naming_field_value_and_limit(field, limit):
+    WorldConfig(**{field: limit})
+    with pytest.raises(ValueError) as refusal:
+        WorldConfig(**{field: limit + 2})
+    assert str(refusal.value) == f"{field} {limit + 2} is over the limit of {limit}"
+
+
+def test_a_scenario_over_a_limit_is_refused_before_its_layout_is_read(tmp_path):
+    data = scenario_dict()
+    data["config"]["height"] = 1_000_000
+    data["agents"] = "not read"  # the configuration is checked first
+    with pytest.raises(ScenarioError) as refusal:
+        Scenario.load(write(tmp_path, json.dumps(data)))
+    assert str(refusal.value).endswith(": malformed scenario: height 1000000 is over the limit of 2048")
+
+
 def test_non_object_json_is_rejected():
     with pytest.raises(ScenarioError, match="must be a JSON object"):
         Scenario.from_json("[1, 2, 3]")

@@ -10,7 +10,8 @@ from pathlib import Path
 import pytest
 
 from formic_eval.paper import paper_food
-from formic_eval.seeds import SeedValidation, mean_over_seeds, seed_means, shipped_seed, spread
+from formic_eval.seeds import SeedValidation, mean_over_seeds, seed_means, shipped_seed, spread, study
+from formic_eval.seeds_report import collapse_line, target_lines
 
 ROOT = Path(__file__).resolve().parents[1]
 SETTING = dict(size=128, agents=16, obstacles=0.0, env="infinite", steps=1024)
@@ -65,7 +66,7 @@ def test_the_mean_over_seeds_pairs_only_scenarios_every_seed_played():
         mean_over_seeds({"seed1": [record("formic", "a", 1), record("formic", "a", 2)]})
 
 
-def test_the_table_reports_each_seed_their_spread_the_paper_and_paired_differences(tmp_path):
+def test_the_table_reports_each_seed_the_statistics_over_seeds_and_the_targets(tmp_path):
     runs = [write_selection(tmp_path / "runs" / "seed1", "novalid.mean", 200.0, {16: 110.0}),
             write_selection(tmp_path / "runs" / "seed2", "novalid128.mean", 250.0, {16: 150.0})]
     evals = [write_episodes(tmp_path / "evals" / "seed1", [record("formic", "a", 100), record("formic", "b", 120)]),
@@ -81,12 +82,61 @@ def test_the_table_reports_each_seed_their_spread_the_paper_and_paired_differenc
     assert "| seed1 | novalid.mean | 110.0 | 200.0 |" in lines and "| seed2 | novalid128.mean | 150.0 | 250.0 |" in lines
     assert "Mean over seeds 225.0 ± 35.4. Chosen to ship: **seed2** (novalid128.mean)" in done.stdout
     published = paper_food({"algorithm": "formic", "variant": "", **SETTING})
-    # pooled per scenario: a 120, b 140; C-SAF-11 a 90, b 100: differences 30 and 40, t(1) interval
-    # 35 +- 12.706 * 5; Cardinality-MR 130 both: -10 and +10. Alone: seed1 is behind Cardinality-MR.
-    row = (f"| infinite, 0% obstacles | 16 | 110 | 150 | 130 ± 28 | {published:.0f} | {130 / published:.2f} | "
-           "+35 [-29, +99] (n=2) | 2 of 2 | +0 [-127, +127] (n=2) | 1 of 2 |")
+    # seeds' means 110 and 150: mean and IQM 130, two seeds bootstrap to [110, 150]. Each seed's
+    # paired difference with C-SAF-11 (a 90, b 100): 15 and 55, mean 35, t(1) interval 35 -+ 12.706 * 20;
+    # bootstrap [15, 55]. With Cardinality-MR (130 on both): -20 and +20, 0 -+ 254.
+    row = (f"| infinite, 0% obstacles | 16 | 110 | 150 | 130 [110, 150] | 130 [110, 150] | {published:.0f} | "
+           f"{130 / published:.2f} | +35 [-219, +289] level | +35 [+15, +55] | "
+           "+0 [-254, +254] level | +0 [-20, +20] |")
     assert row in lines, done.stdout
     assert sum(line.startswith("| ") and " | 32 | " in line for line in lines) == 0  # no seed played 32 agents
+    ratios = f"{(110 / published + 150 / published) / 2:.2f}"
+    assert (f"ForMIC / the paper over the 1 published cells every seed played (each seed's mean food in a cell "
+            f"divided by the paper's): mean {ratios} [{110 / published:.2f}, {150 / published:.2f}]") in done.stdout
+    # validation 200 and 250, median 225: nobody below 168.75
+    assert "Collapse rate: 0 of 2 seeds (0%) below 0.75 x the median seed's mean validation food (225.0)." in lines
+    assert "- No seed collapses (each ≥ 0.75 x the median seed's mean validation food): met: the lowest seed, " \
+           "seed1, is at 0.89 x the median." in lines
+    assert (f"- Mean over seeds ≥ 0.9 x the paper's ForMIC in each published Fig. 5 cell: missed in 1 of 1 published "
+            f"cells: infinite, 0% obstacles, 16 agents ({130 / published:.2f} x); the lowest is "
+            f"{0.9 - 130 / published:.2f} short (only 1 of the 16 published cells evaluated).") in lines
+    assert ("- Ahead of C-SAF-11 in ≥ 20 of 24 cells by the t interval over seeds: missed: ahead in 0, level in 1, "
+            "behind in 0 of 1 cells, 20 short (only 1 of the 24 cells evaluated).") in lines
+
+    # the same statistics from `formic eval --report --seed-eval`, the collapse rule on test food
+    from click.testing import CliRunner
+
+    from formic_cli.main import cli
+
+    args = ["eval", "--out", str(baselines), "--report", "--seed-eval", str(evals[0]), "--seed-eval", str(evals[1])]
+    result = CliRunner().invoke(cli, args)
+    assert result.exit_code == 0, result.output
+    assert row in result.output.splitlines()
+    assert ("Collapse rate: 0 of 2 seeds (0%) below 0.75 x the median seed's mean test food over the 1 Fig. 5 "
+            "cells every seed played (no validation given) (130.0).") in result.output
+    assert not (baselines / "results.md").exists()  # the baselines' folder is read, not rebuilt
+    study = json.loads(CliRunner().invoke(cli, [*args, "--json"]).output)["study"]
+    assert study["cells"][0]["versus"]["csaf11"]["t"]["value"] == 35.0 and study["names"] == ["seed1", "seed2"]
+    refused = CliRunner().invoke(cli, ["eval", "--out", str(baselines), "--seed-eval", str(evals[0])])
+    assert refused.exit_code == 2 and "--seed-eval goes with --report" in refused.output
+
+
+def test_the_targets_name_the_collapsed_seed_and_the_cells_ahead():
+    """Three seeds, one far below the others on validation; every seed ahead of C-SAF-11 on the cell."""
+    per_seed = {f"seed{i}": [record("formic", "a", food), record("formic", "b", food + 10)]
+                for i, food in ((1, 100), (2, 110), (3, 120))}
+    baselines = {"csaf11": [record("csaf11", "a", 50), record("csaf11", "b", 60)], "cardinality": []}
+    result = study(per_seed, baselines, {"seed1": 100.0, "seed2": 300.0, "seed3": 320.0})
+    # differences 50, 60, 70: mean 60, std 10, t(2) = 4.302653: 60 -+ 24.84, ahead
+    (cell,) = result.cells
+    assert cell.versus["csaf11"].t.low == pytest.approx(60 - 4.302653 * 10 / 3 ** 0.5, abs=1e-4)
+    assert list(cell.versus) == ["csaf11"]  # no Cardinality-MR episodes: no comparison
+    lines = target_lines(result)
+    # median 300: seed1 at 0.33 x, 0.42 below the 0.75 x line
+    assert lines[0].endswith("missed: 1 of 3 seeds collapsed (seed1); the lowest, seed1, is at 0.33 x the median, "
+                             "0.42 short.")
+    assert "ahead in 1, level in 0, behind in 0 of 1 cells, 19 short" in lines[2]
+    assert "1 of 3 seeds (33%)" in collapse_line(result) and "seed1 100.0 (0.33 x)" in collapse_line(result)
 
 
 def test_evals_must_match_the_runs_one_for_one(tmp_path):
@@ -97,11 +147,11 @@ def test_evals_must_match_the_runs_one_for_one(tmp_path):
     assert done.returncode == 2 and "--evals names 2 folders for 1 runs" in done.stderr
 
 
-def test_readme_seeds_block_is_current():
-    """The README's seeds block is what scripts/seeds_table.py builds from the committed runs and
+def test_results_page_seeds_block_is_current():
+    """The results page's seeds block is what scripts/seeds_table.py builds from the committed runs and
     evaluation folders (its defaults: every finished recipe-paper seed)."""
     script = ROOT / "scripts" / "seeds_table.py"
-    done = subprocess.run([sys.executable, str(script), "--check", str(ROOT / "README.md")],
+    done = subprocess.run([sys.executable, str(script), "--check", str(ROOT / "docs" / "results.md")],
                           capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
 

@@ -14,12 +14,13 @@ import pickle
 import re
 import warnings
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import torch
 
 from formic_world.errors import InputError
 from formic_world.files import atomic_open
+from formic_world.limits import MAX_CHECKPOINT_BYTES
 
 from .inputs import NetworkConfig
 
@@ -27,6 +28,7 @@ from .network import ForMICNet
 
 CHECKPOINT_FORMAT = "formic-checkpoint"
 CHECKPOINT_VERSION = 1
+ZIP_MAGIC = b"PK\x03\x04"  # a zip archive's first local file header
 
 
 class CheckpointError(InputError):
@@ -51,17 +53,35 @@ def read_checkpoint(source: str | os.PathLike | bytes) -> dict[str, Any]:
         handle = io.BytesIO(source) if isinstance(source, bytes) else open(source, "rb")
     except OSError as exc:
         raise CheckpointError(f"{name}: cannot read ({exc.strerror})") from exc
-    try:
-        with handle, warnings.catch_warnings():  # torch warns of a pickle protocol it may not read, then fails
-            warnings.filterwarnings("ignore", "Detected pickle protocol", UserWarning)
-            payload = torch.load(handle, map_location="cpu", weights_only=True)
-    except Exception as exc:  # torch raises many types for corrupt or unsafe files
-        raise CheckpointError(f"{name}: not a readable ForMIC checkpoint ({_load_failure(exc)})") from exc
+    with handle:
+        _check_container(handle, name)
+        try:
+            with warnings.catch_warnings():  # torch warns of a pickle protocol it may not read, then fails
+                warnings.filterwarnings("ignore", "Detected pickle protocol", UserWarning)
+                payload = torch.load(handle, map_location="cpu", weights_only=True)
+        except Exception as exc:  # torch raises many types for corrupt or unsafe files
+            raise CheckpointError(f"{name}: not a readable ForMIC checkpoint ({_load_failure(exc)})") from exc
     if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
         raise CheckpointError(f"{name}: not a ForMIC checkpoint")
     if payload.get("version") != CHECKPOINT_VERSION:
         raise CheckpointError(f"{name}: checkpoint version {payload.get('version')} is not supported")
     return payload
+
+
+def _check_container(handle: BinaryIO, name: str) -> None:
+    """Refuse, before torch reads a byte of it, a file over MAX_CHECKPOINT_BYTES and one that
+    is not a zip archive (torch.save writes one): torch would parse a text file or a bare pickle
+    as a legacy format and fail with a bare "KeyError: 101"."""
+    size = handle.seek(0, os.SEEK_END)
+    handle.seek(0)
+    if size > MAX_CHECKPOINT_BYTES:
+        raise CheckpointError(f"{name}: {size:,} bytes is over the limit of {MAX_CHECKPOINT_BYTES:,} for a model file")
+    if size == 0:
+        raise CheckpointError(f"{name}: not a ForMIC checkpoint (the file is empty)")
+    if handle.read(len(ZIP_MAGIC)) != ZIP_MAGIC:
+        raise CheckpointError(f"{name}: not a ForMIC checkpoint (torch.save writes a zip archive; this is "
+                              "something else)")
+    handle.seek(0)
 
 
 def _name(source: str | os.PathLike | bytes) -> str:
@@ -82,8 +102,14 @@ def _load_failure(exc: Exception) -> str:
 
 def load_network(source: str | os.PathLike | bytes) -> tuple[ForMICNet, dict[str, Any]]:
     payload = read_checkpoint(source)
+    if not isinstance(payload.get("network"), dict):
+        raise CheckpointError(f"{_name(source)}: the checkpoint has no network configuration")
+    try:  # before any layer is allocated: NetworkConfig refuses widths over the limits
+        config = NetworkConfig.from_dict(payload["network"])
+    except (ValueError, TypeError) as exc:
+        raise CheckpointError(f"{_name(source)}: {exc}") from exc
     try:
-        net = ForMICNet(NetworkConfig.from_dict(payload["network"]))
+        net = ForMICNet(config)
         net.load_state_dict(payload["state_dict"])
     except (KeyError, RuntimeError, ValueError, TypeError) as exc:
         raise CheckpointError(f"{_name(source)}: checkpoint does not match its network configuration "

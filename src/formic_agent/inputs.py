@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from formic_world.geometry import N_ACTIONS, nest_centre
+from formic_world.limits import MAX_NETWORK_WIDTH, MAX_VIEW_SIZE, check_at_most
 
 
 @dataclass(frozen=True)
@@ -28,6 +29,15 @@ class NetworkConfig:
     # Opt-in switch (issue 11's lever; tells nothing of the nest): the agent's own previous
     # action and whether it took effect, so the LSTM can integrate its moves in a crowd.
     action_input: bool = False
+
+    def __post_init__(self) -> None:
+        """Refuse widths a checkpoint could ask for before any layer is allocated."""
+        for name in ("conv1", "conv2", "fc", "rnn", "channels"):
+            width = getattr(self, name)
+            if not isinstance(width, int) or width < 1:
+                raise ValueError(f"network {name} must be a positive integer, got {width!r}")
+            check_at_most(f"network {name}", width, MAX_NETWORK_WIDTH)
+        check_at_most("network view_size", self.view_size, MAX_VIEW_SIZE)
 
     @property
     def reads_extra(self) -> bool:

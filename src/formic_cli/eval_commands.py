@@ -61,12 +61,21 @@ def _split(text: str, kind, option: str, choices=None) -> list:
               help="Episodes run in parallel processes (1: in this process; fairest for timings).")
 @click.option("--report", "report_only", is_flag=True,
               help="Run nothing: rebuild results, figures and results.md from every episode in OUT.")
+@click.option("--seed-eval", "seed_evals", multiple=True, type=click.Path(file_okay=False, exists=True),
+              help="With --report, repeated: the evaluation folders of one recipe's seeds (one model each). "
+                   "Instead of rebuilding OUT, print the statistics over these seeds on Fig. 5's cells, "
+                   "against the baselines' episodes in OUT on the same scenarios.")
 @json_option()
 @click.pass_context
 def eval_command(ctx, algorithms, sizes, teams, obstacles, envs, scenarios, seed, steps, out, model, greedy,
-                 no_pheromones, pheromone_variant, workers, report_only, as_json) -> None:
+                 no_pheromones, pheromone_variant, workers, report_only, seed_evals, as_json) -> None:
     """Run every algorithm on the same stored scenarios; write CSV/JSON results, figures and
     OUT/results.md (ours beside the paper's numbers). Interrupt with Ctrl-C and rerun to resume."""
+    if seed_evals and not report_only:
+        raise click.UsageError("--seed-eval goes with --report")
+    if seed_evals:
+        _report_seeds(Path(out), [Path(folder) for folder in seed_evals], as_json)
+        return
     if report_only:
         from formic_eval.runner import report_everything
 
@@ -114,6 +123,33 @@ def eval_command(ctx, algorithms, sizes, teams, obstacles, envs, scenarios, seed
     emit(as_json, summary, _print_summary)
     if summary["interrupted"]:
         ctx.exit(130)
+
+
+def _report_seeds(baselines_folder: Path, folders: list[Path], as_json: bool) -> None:
+    """The statistics over seeds (``formic_eval.seeds_report``): each folder's ForMIC episodes
+    by the paper's protocol, named by the folder, against OUT's C-SAF-11 and Cardinality-MR."""
+    import dataclasses as dc
+
+    from formic_eval.paper import RIVALS, test_set_episodes
+    from formic_eval.runner import folder_episodes
+    from formic_eval.seeds import study
+    from formic_eval.seeds_report import seeds_report
+
+    names = [folder.name for folder in folders]
+    if len(set(names)) < len(names):
+        raise click.BadParameter(f"two seed folders share a name ({', '.join(names)})", param_hint="--seed-eval")
+    per_seed = {folder.name: test_set_episodes(folder_episodes(folder), "formic") for folder in folders}
+    empty = [name for name, records in per_seed.items() if not records]
+    if empty:
+        raise click.ClickException(f"no ForMIC test episodes in {', '.join(empty)}")
+    everything = folder_episodes(baselines_folder)
+    baselines = {algorithm: test_set_episodes(everything, algorithm) for algorithm, _ in RIVALS}
+    with click_errors(ValueError):
+        result = study(per_seed, baselines)
+    lines = seeds_report(result)
+    summary = {"out": str(baselines_folder), "seed_evals": [str(f) for f in folders],
+               "study": dc.asdict(result), "report": "\n".join(lines)}
+    emit(as_json, summary, summary["report"])
 
 
 def _policy_options(names: list[str], model: str | None, greedy: bool, no_pheromones: bool):

@@ -16,7 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .paired import SCENARIO_KEY
+from .paired import SCENARIO_KEY, compare
+from .paper import FIG5_SETTINGS, PAPER_SIZE, PAPER_STEPS, PAPER_TEAMS, paper_food
+from .seed_stats import Estimate, OverSeeds, SeedComparison, compare_over_seeds, over_seeds
 
 SETTING_KEY = SCENARIO_KEY[:-1]  # size, agents, obstacles, env, steps
 
@@ -89,3 +91,85 @@ def mean_over_seeds(per_seed: Mapping[str, Sequence[dict]]) -> list[dict]:
     return [indexed[0][key] | {"food": float(np.mean([seed[key]["food"] for seed in indexed])),
                                "seeds": len(indexed)}
             for key in sorted(common, key=str)]
+
+
+def seed_differences(per_seed: Mapping[str, Sequence[dict]], baseline: Sequence[dict]) -> dict[tuple, dict[str, float]]:
+    """Per setting, each seed's paired mean difference with ``baseline`` (its food minus the
+    baseline's, averaged over the scenarios both played there)."""
+    out: dict[tuple, dict[str, float]] = {}
+    for name, records in per_seed.items():
+        for setting, difference in compare(records, baseline).items():
+            out.setdefault(setting, {})[name] = difference.mean
+    return out
+
+
+def fig5_settings() -> list[tuple]:
+    """Fig. 5's 24 cells as settings (size, agents, obstacles, env, steps), in the paper's order."""
+    return [(PAPER_SIZE, n, obstacles, env, PAPER_STEPS) for env, obstacles in FIG5_SETTINGS for n in PAPER_TEAMS]
+
+
+def published_food(setting: tuple) -> float | None:
+    """The paper's ForMIC food in this setting (16 of Fig. 5's 24 cells are published)."""
+    return paper_food({"algorithm": "formic", "variant": ""} | dict(zip(SETTING_KEY, setting)))
+
+
+@dataclass(frozen=True)
+class CellOverSeeds:
+    """One Fig. 5 cell: each seed's mean food, the mean and IQM over seeds, the paper's food,
+    and per baseline the comparison over seeds."""
+
+    setting: tuple
+    foods: dict[str, float]
+    mean: Estimate
+    iqm: Estimate
+    paper: float | None
+    versus: dict[str, SeedComparison]
+
+
+@dataclass(frozen=True)
+class SeedsStudy:
+    """Every statistic over the seeds that the reports print."""
+
+    names: list[str]
+    cells: list[CellOverSeeds]
+    paper_cells: list[tuple]  # the published cells every seed played, which ``paper_ratio`` pools
+    paper_ratio: OverSeeds | None  # each seed's food / the paper's, over ``paper_cells``
+    collapse_foods: dict[str, float]  # what the collapse rule reads, per seed
+    collapse_source: str  # which food that is, in words
+
+    def seed_paper_ratio(self) -> dict[str, float]:
+        """Each seed's mean of food / the paper's over ``paper_cells``."""
+        return {name: float(np.mean([cell.foods[name] / cell.paper for cell in self.cells
+                                     if cell.setting in self.paper_cells])) for name in self.names}
+
+
+def study(per_seed: Mapping[str, Sequence[dict]], baselines: Mapping[str, Sequence[dict]],
+          validation_foods: Mapping[str, float] | None = None) -> SeedsStudy:
+    """The statistics over seeds on Fig. 5's cells. ``per_seed``: each seed's test episodes (one
+    algorithm, the paper's protocol); ``baselines``: per algorithm its episodes on the same
+    scenarios. The collapse rule reads ``validation_foods`` (each seed's mean validation food);
+    without them, each seed's mean test food over the cells every seed played, named as such."""
+    names = list(per_seed)
+    means = seed_means(per_seed)
+    versus = {algorithm: seed_differences(per_seed, records) for algorithm, records in baselines.items()}
+    cells = []
+    for setting in fig5_settings():
+        foods = means.get(setting, {})
+        if not foods:
+            continue
+        summary = over_seeds(np.array(list(foods.values()))[:, None])
+        cells.append(CellOverSeeds(
+            setting, foods, summary.task_means[0], summary.task_iqms[0], published_food(setting),
+            {algorithm: compare_over_seeds(list(by_setting[setting].values()))
+             for algorithm, by_setting in versus.items() if by_setting.get(setting)}))
+    everyone = [cell for cell in cells if len(cell.foods) == len(names)]
+    published = [cell for cell in everyone if cell.paper]
+    ratio = (over_seeds([[cell.foods[name] / cell.paper for cell in published] for name in names])
+             if published else None)
+    if validation_foods is not None:
+        foods, source = dict(validation_foods), "mean validation food"
+    else:
+        foods = {name: float(np.mean([cell.foods[name] for cell in everyone])) if everyone else float("nan")
+                 for name in names}
+        source = f"mean test food over the {len(everyone)} Fig. 5 cells every seed played (no validation given)"
+    return SeedsStudy(names, cells, [cell.setting for cell in published], ratio, foods, source)

@@ -15,6 +15,8 @@ from fractions import Fraction
 from functools import cached_property
 from typing import Any
 
+from .limits import MAX_AGENTS, MAX_EPISODE_STEPS, MAX_QUEUE_LEN, MAX_SIDE, MAX_VIEW_SIZE, check_at_most
+
 PHEROMONE_VARIANTS = ("standard", "flat", "noisy", "random")
 CAPACITY_MODES = ("infinite", "finite")
 TIMINGS = ("reference", "nominal")
@@ -88,10 +90,16 @@ class WorldConfig:
     rewards: RewardConfig = field(default_factory=RewardConfig)
 
     def __post_init__(self) -> None:
+        for name, limit in (("height", MAX_SIDE), ("width", MAX_SIDE), ("n_agents", MAX_AGENTS),
+                            ("view_size", MAX_VIEW_SIZE), ("episode_steps", MAX_EPISODE_STEPS),
+                            ("queue_len", MAX_QUEUE_LEN)):
+            check_at_most(name, getattr(self, name), limit)
         if self.height < 12 or self.width < 12:
             raise ValueError(f"world must be at least 12x12, got {self.height}x{self.width}")
         if self.n_agents < 1:
             raise ValueError("n_agents must be >= 1")
+        if self.queue_len < 1:
+            raise ValueError(f"queue_len must be >= 1, got {self.queue_len}")
         for name, allowed in (
             ("capacity", CAPACITY_MODES), ("timing", TIMINGS), ("agent_order", AGENT_ORDERS),
             ("training_filter", TRAINING_FILTERS), ("pheromone_variant", PHEROMONE_VARIANTS),

@@ -11,7 +11,6 @@ import json
 import os
 from collections.abc import Iterable
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -30,6 +29,7 @@ from .geometry import (
     queue_cells,
     strip_cells,
 )
+from .limits import MAX_SCENARIO_BYTES
 
 SCENARIO_FORMAT = "formic-scenario"
 SCENARIO_VERSION = 2  # 2: the configuration carries ``timing``; version 1 files ran nominal timing
@@ -135,8 +135,14 @@ class Scenario:
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "Scenario":
+        """Read a scenario file; one larger than MAX_SCENARIO_BYTES is refused unread."""
         try:
-            text = Path(path).read_text()
+            with open(path, "rb") as handle:
+                size = os.fstat(handle.fileno()).st_size
+                if size > MAX_SCENARIO_BYTES:
+                    raise ScenarioError(f"{path}: {size:,} bytes is over the limit of {MAX_SCENARIO_BYTES:,} "
+                                        "for a scenario file")
+                text = handle.read().decode()
         except UnicodeDecodeError as exc:
             raise ScenarioError(f"{path}: not a text file") from exc
         except OSError as exc:
