@@ -13,7 +13,7 @@ it, then per Fig. 5 cell each seed's food, the mean and the interquartile mean o
 stratified bootstrap 95% intervals beside the paper's ForMIC, and against C-SAF-11 and
 Cardinality-MR each seed's paired mean difference summarised over seeds (t and bootstrap 95%
 intervals, and the verdict ahead/level/behind); then ForMIC / the paper over the published
-cells, the collapse rate (on validation food) and issue 46's three targets, met or missed
+cells, the collapse rate (on validation food) and the three targets of the eight-seed experiment, met or missed
 (``formic_eval.seeds_report``). Without ``--runs``: every finished seed
 (``models/training/recipe-paper/seedS`` with its ``selection.json``) and its
 ``eval/recipe-paper/seedS`` folder, the results page's block (docs/results.md):

@@ -18,6 +18,7 @@ from click.testing import CliRunner
 from formic_agent.checkpoint import load_network, read_checkpoint
 from formic_cli.main import cli
 from formic_eval.matrix import file_digest, layout_seed
+from formic_trainer.actor import filter_probability
 from formic_trainer.config import load_train_config
 from formic_trainer.recipe import SELECTION_RULE, load_recipe, run_recipe, stage_config, weights_file
 
@@ -170,6 +171,10 @@ SMOKE_TEXT = (ROOT / "recipes" / "smoke.toml").read_text()
     ("world_sizes = [[16, 16], [16, 20]]", "world_sizes = [[16, 16], [16]]", "world_sizes[1] must be a list of 2"),
     ('candidates = ["middle.mean", "last.mean"]', 'candidates = ["middle.mean", "nothing"]', "candidates 'nothing'"),
     ("scenarios = 1", "scenarios = 0", "validation.scenarios must be a whole number >= 1"),
+    ('start = "middle.mean"', 'start = "middle.best"', "stage 'last': start 'middle.best': stage 'middle' keeps no "
+                                                       "best.pt, its fall guard is off"),
+    ('candidates = ["middle.mean", "last.mean"]', 'candidates = ["first.best", "last.mean"]',
+     "candidates 'first.best': stage 'first' keeps no best.pt"),
     ('start = "scratch"', 'start = "scratch"\nscaled = "no"', "stage 'first'.scaled must be true or false"),
 ])
 def test_a_malformed_recipe_is_one_line_of_error_before_anything_runs(tmp_path, old, new, message):
@@ -271,6 +276,7 @@ def test_a_run_resumes_on_another_thread_count_and_validates_in_as_many_processe
     parts = tmp_path / "parts"
     run(parts, stop_at="| recipe 6/12 episodes")
     claim = (parts / "recipe.json").read_text()
+    assert json.loads(claim)["recipe"] == "recipes/smoke.toml"  # no machine path in a committed claim
     result = CliRunner().invoke(cli, ["train", "--recipe", "smoke", "--seed", "1", "--run-dir", str(parts),
                                       "--threads", "2"])
     assert result.exit_code == 0, result.output
@@ -374,3 +380,57 @@ def test_train_tables_trains_every_row_once_and_skips_a_row_another_process_hold
     assert json.loads((runs / "blind" / "recipe.json").read_text())["switch"] == "blind"
     assert load_train_config(runs / "blind" / "last" / "config.json").threads == 2  # THREADS: --threads 2
     assert load_train_config(runs / "all-learn" / "last" / "config.json").threads == 1
+
+
+def guarded_smoke(tmp_path: Path) -> Path:
+    """The smoke recipe with a fall guard from its first stage on (every set watched, a window of
+    one set), its second stage started from the first's best.pt and that stage's best.pt a candidate."""
+    recipe = tmp_path / "guarded.toml"
+    recipe.write_text(SMOKE_TEXT.replace("checkpoint_every = 1\n", "checkpoint_every = 1\nguard_drop = 0.99\n"
+                                         "guard_window = 1\n", 1)
+                      .replace('start = "first"', 'start = "first.best"', 1)
+                      .replace('candidates = ["middle.mean", "last.mean"]', 'candidates = ["middle.best", "last.mean"]'))
+    return recipe
+
+
+def test_a_stage_starts_from_the_best_checkpoint_its_guarded_predecessor_kept(tmp_path):
+    recipe = load_recipe(str(guarded_smoke(tmp_path)))
+    run_dir = tmp_path / "run"
+    lines: list[str] = []
+    run_recipe(recipe, run_dir, seed=1, echo=lines.append)
+    assert "stage 2/3 middle: 4 episodes from first.best (a fresh optimiser)" in "\n".join(lines)
+    assert load_train_config(run_dir / "middle" / "config.json").init_weights == str(run_dir / "first" / "best.pt")
+    for stage in ("first", "middle", "last"):  # every stage's best.pt: its guard's best rolling food
+        guard = read_checkpoint(run_dir / stage / "latest.pt")["progress"]["guard"]
+        best = read_checkpoint(run_dir / stage / "best.pt")["progress"]
+        assert best["episode"] == guard["best_episode"] and best["guard"]["best"] == guard["best"]
+    selection = json.loads((run_dir / "selection.json").read_text())
+    assert selection["candidates"]["middle.best"]["file"] == str(run_dir / "middle" / "best.pt")
+    assert weights_file(run_dir, "middle.best") == run_dir / "middle" / "best.pt"
+
+
+def test_the_guarded_recipe_is_the_paper_recipe_with_guards_within_five_cpu_hours():
+    """recipes/paper-v2.toml: the stages of docs/training.md, "The guarded recipe (paper-v2)",
+    and its CPU estimate from paper.toml's measured clock per episode within its budget."""
+    v2, paper = load_recipe("paper-v2"), load_recipe("paper")
+    assert [(s.name, s.episodes, s.start, s.average) for s in v2.stages] == [
+        ("basics", 300, "scratch", None), ("reference", 640, "basics", None), ("crowd", 240, "reference.best", None),
+        ("nonlearning", 208, "crowd.best", (96, 8)), ("novalid", 304, "nonlearning.mean", (208, 8)),
+        ("novalid128", 208, "novalid.mean", (112, 8))]
+    assert v2.stages[0] == paper.stages[0]
+    assert (v2.candidates, v2.validation, v2.switches) == (paper.candidates, paper.validation, ())
+    configs = {s.name: stage_config(v2, i, Path("run"), seed=1) for i, s in enumerate(v2.stages)}
+    reference, crowd = configs["reference"], configs["crowd"]
+    assert (reference.filter_anneal_start, reference.filter_anneal_end, reference.filter_final) == (0, 480, 0.0)
+    assert (reference.guard_drop, reference.guard_after, reference.target_kl) == (0.6, 480, 0.01)
+    assert filter_probability(reference, 480) == 0.0  # the guard watches unfiltered episodes only
+    assert all(filter_probability(crowd, e) == 0.0 for e in range(0, 240, 4))
+    assert (crowd.guard_drop, crowd.guard_after, crowd.lr, crowd.target_kl, crowd.curriculum) == \
+        (0.5, 0, 1e-4, 0.01, False)
+    assert [configs[name].guard_drop for name in ("nonlearning", "novalid", "novalid128")] == [0.0, 0.0, 0.0]
+    cpu_seconds = {"basics": 7.7, "reference": 7.7, "crowd": 18, "nonlearning": 4.7, "novalid": 3.9, "novalid128": 4.6}
+    hours = sum(cpu_seconds[s.name] * s.episodes for s in v2.stages) / 3600 + 0.4  # validation: ~0.4 h
+    assert hours == pytest.approx(4.48, abs=0.01) and hours <= v2.budget_cpu_hours == 5.0
+    assert "1, 2, 3, 4, 5, 6, 7, 8" in v2.text
+    parsed = cli.commands["train"].make_context("train", ["--recipe", "paper-v2", "--seed", "1", "--run-dir", "X"])
+    assert (parsed.params["recipe"], parsed.params["seed"]) == ("paper-v2", 1)

@@ -46,12 +46,14 @@ def learning_rows(cfg: TrainConfig, ids: np.ndarray) -> np.ndarray:
 
 
 def filter_probability(cfg: TrainConfig, episode: int) -> float:
-    """Probability that an agent-episode acts under the training filter."""
-    start, end = cfg.filter_anneal_start, cfg.filter_anneal_end
+    """Probability that an agent-episode acts under the training filter: ``filter_initial`` up
+    to ``filter_anneal_start``, then linearly to ``filter_final`` at ``filter_anneal_end``
+    (no schedule, an end not after the start: ``filter_initial`` throughout)."""
+    start, end, initial = cfg.filter_anneal_start, cfg.filter_anneal_end, cfg.filter_initial
     if end <= start:
-        return 1.0
+        return initial
     fraction = min(max((episode - start) / (end - start), 0.0), 1.0)
-    return 1.0 + fraction * (cfg.filter_final - 1.0)
+    return initial + fraction * (cfg.filter_final - initial)
 
 
 def select_actions(cfg: TrainConfig, logits: torch.Tensor, train_mask: np.ndarray, generator: torch.Generator,

@@ -94,6 +94,9 @@ def policy_losses(net: ForMICNet, cfg: TrainConfig,
         terms["valid_accuracy"] = masked_mean(agree, loss_mask)
         if cfg.clip > 0:
             terms["clip_fraction"] = masked_mean(((ratio - 1).abs() > cfg.clip).float(), loss_mask)
+        # KL(behaviour || current), the low-variance estimator (r - 1) - log r (Schulman's k3)
+        log_ratio = logp - batch["logprobs"]
+        terms["approx_kl"] = masked_mean(torch.expm1(log_ratio) - log_ratio, loss_mask)
     return terms
 
 
@@ -146,32 +149,43 @@ def update_tensors(cfg: TrainConfig, rollout: Rollout) -> dict[str, torch.Tensor
 def update(net: ForMICNet, optimizer: torch.optim.Optimizer, cfg: TrainConfig, rollout: Rollout,
            rng: np.random.Generator) -> dict[str, float]:
     """One update from a rollout: the same function serves the in-process trainer and the ROS
-    trainer node. ``rng`` permutes the agent sequences into minibatches."""
+    trainer node. ``rng`` permutes the agent sequences into minibatches. With ``target_kl`` the
+    update stops (its remaining minibatches and epochs) at the first minibatch whose approx_kl
+    exceeds 1.5 x target_kl, before stepping on it (Stable-Baselines3's rule); the stats hold
+    that minibatch's terms too, and ``update_fraction``: the minibatch steps taken / planned."""
     tensors = update_tensors(cfg, rollout)
     n_seq = tensors["observations"].shape[1]
+    n_batches = min(cfg.minibatches, n_seq)  # fewer learners than minibatches: one each
     stats: dict[str, list[float]] = {}
+    steps, stopped = 0, False
     for _ in range(cfg.epochs):
         order = rng.permutation(n_seq)
-        for chunk in np.array_split(order, min(cfg.minibatches, n_seq)):  # fewer learners than minibatches: one each
+        for chunk in np.array_split(order, n_batches):
             idx = torch.from_numpy(chunk)
             batch = {k: v[:, idx] for k, v in tensors.items()}
             terms = policy_losses(net, cfg, batch)
-            optimizer.zero_grad()
-            terms["loss"].backward()
-            grad_norm = torch.nn.utils.clip_grad_norm_(net.parameters(), cfg.max_grad_norm)
-            optimizer.step()
-            terms["grad_norm"] = grad_norm
+            stopped = cfg.target_kl > 0 and float(terms["approx_kl"]) > 1.5 * cfg.target_kl
+            if not stopped:
+                optimizer.zero_grad()
+                terms["loss"].backward()
+                terms["grad_norm"] = torch.nn.utils.clip_grad_norm_(net.parameters(), cfg.max_grad_norm)
+                optimizer.step()
+                steps += 1
             for k, v in terms.items():  # every term is a tensor
                 stats.setdefault(k, []).append(float(v.detach()))
-    return {k: float(np.mean(v)) for k, v in stats.items()}
+            if stopped:
+                break
+        if stopped:
+            break
+    return {k: float(np.mean(v)) for k, v in stats.items()} | {"update_fraction": steps / (cfg.epochs * n_batches)}
 
 
-def set_learning_rate(optimizer: torch.optim.Optimizer, cfg: TrainConfig, updates: int) -> None:
-    """The learning rate of update number ``updates`` (0-based): ``lr``, ramped up linearly
-    over the first ``lr_warmup`` updates."""
+def set_learning_rate(optimizer: torch.optim.Optimizer, cfg: TrainConfig, updates: int, factor: float = 1.0) -> None:
+    """The learning rate of update number ``updates`` (0-based): ``lr`` times ``factor`` (the
+    fall guard's), ramped up linearly over the first ``lr_warmup`` updates."""
     scale = min(1.0, (updates + 1) / cfg.lr_warmup) if cfg.lr_warmup > 0 else 1.0
     for group in optimizer.param_groups:
-        group["lr"] = cfg.lr * scale
+        group["lr"] = cfg.lr * scale * factor
 
 
 def make_optimizer(net: ForMICNet, cfg: TrainConfig) -> torch.optim.Optimizer:

@@ -38,6 +38,7 @@ class TrainConfig:
     epochs: int = 1
     minibatches: int = 1
     clip: float = 0.0  # PPO ratio clip; 0 = plain actor-critic (the paper)
+    target_kl: float = 0.0  # stop an update's minibatches once approx_kl > 1.5 x this (0 = off)
     gamma: float = 0.95
     gae_lambda: float = 1.0  # 1.0 = n-step bootstrapped returns (the paper)
     value_coef: float = 0.5
@@ -48,8 +49,9 @@ class TrainConfig:
     valid_loss: Literal["bce", "mass"] = "bce"  # the paper's sigmoid predictor, or -log P(valid move)
     valid_join_coef: float = 0.0  # the paper's BCE on the JOIN logit alone, beside valid_loss (0 = off)
     mask_join: bool = True  # with action_filter="mask": also mask an invalid JOIN
-    filter_anneal_start: int = 0  # filter annealing (beyond the paper): P(filtered) falls linearly from 1 ...
-    filter_anneal_end: int = 0  # ... at filter_anneal_start to filter_final at filter_anneal_end
+    filter_anneal_start: int = 0  # filter annealing (beyond the paper): P(filtered) falls linearly from ...
+    filter_anneal_end: int = 0  # ... filter_initial at filter_anneal_start to filter_final at filter_anneal_end
+    filter_initial: float = 1.0
     filter_final: float = 1.0
     init_weights: str = ""  # start the network from this checkpoint (warm start / fine-tune)
     weight_average: float = 0.0  # decay of a moving average of the weights, written as averaged.pt (0 = off)
@@ -75,6 +77,12 @@ class TrainConfig:
     curriculum_start: int = 5000
     curriculum_end: int = 10000
     training_start: bool = True  # some agents start in cache queues loaded (reference behaviour)
+    # Fall guard (formic_trainer.guard): keep best.pt, roll back to it when the rolling food falls
+    guard_drop: float = 0.0  # roll back when the rolling food < guard_drop x its best (0 = off)
+    guard_window: int = 5  # episode sets in the rolling food mean
+    guard_after: int = 0  # watch the episode sets played from this episode on
+    guard_max: int = 3  # rollbacks at most; after them the guard only logs
+    guard_lr_factor: float = 0.5  # each rollback multiplies the learning rate by this
     # Run
     total_episodes: int = 24000  # environment episodes (summed over meta-agents)
     checkpoint_every: int = 1  # episode sets (one episode in every meta-agent world)
@@ -88,6 +96,13 @@ class TrainConfig:
             raise ValueError(f"network must be one of {', '.join(map(repr, NETWORK_PRESETS))}, not {self.network!r}")
         if not 0.0 <= self.weight_average < 1.0:
             raise ValueError(f"weight_average is a decay in [0, 1) (0 = off), not {self.weight_average}")
+        if not 0.0 <= self.filter_initial <= 1.0:
+            raise ValueError(f"filter_initial is a probability in [0, 1], not {self.filter_initial}")
+        if not 0.0 <= self.guard_drop < 1.0 or not 0.0 < self.guard_lr_factor <= 1.0:
+            raise ValueError(f"guard_drop must be in [0, 1) (0 = off) and guard_lr_factor in (0, 1], not "
+                             f"{self.guard_drop} and {self.guard_lr_factor}")
+        if self.target_kl < 0 or self.guard_window < 1 or self.guard_max < 0 or self.guard_after < 0:
+            raise ValueError("target_kl, guard_max and guard_after must be >= 0 and guard_window >= 1")
         reward_config(self)  # a bad reward_overrides fails here, not at the first episode
         if len(self.world_sizes) < len(self.teams):
             raise ValueError(f"{len(self.teams)} teams but {len(self.world_sizes)} world_sizes: give one side "
@@ -145,20 +160,37 @@ def make_config(preset: str = "paper", **overrides) -> TrainConfig:
 
 
 def parse_overrides(pairs: tuple[str, ...] | list[str]) -> dict:
-    """``KEY=VALUE`` strings to TrainConfig fields, typed like the field's default."""
+    """``KEY=VALUE`` strings to TrainConfig fields, typed like the field's default; every error
+    names the key it is about."""
+    import difflib
+
     defaults = TrainConfig()
+    fields = [f.name for f in dataclasses.fields(TrainConfig)]
     out: dict = {}
     for pair in pairs:
         key, sep, text = pair.partition("=")
-        if not sep or not hasattr(defaults, key):
-            raise ValueError(f"bad override {pair!r}: expected FIELD=VALUE with a TrainConfig field")
+        if not sep:
+            raise ValueError(f"--set {pair!r}: expected FIELD=VALUE with a TrainConfig field")
+        if key not in fields:
+            close = difflib.get_close_matches(key, fields, n=1)
+            raise ValueError(f"{key!r} is not a TrainConfig field{f' (did you mean {close[0]}?)' if close else ''}: "
+                             "the settings are listed in docs/training.md")
         current = getattr(defaults, key)
         if isinstance(current, bool):
             if text.lower() not in ("true", "false", "1", "0", "yes", "no"):
                 raise ValueError(f"{key} expects true/false, got {text!r}")
             out[key] = text.lower() in ("true", "1", "yes")
         elif key == "teams":
-            out[key] = tuple(int(v) for v in text.split(","))
+            try:
+                out[key] = tuple(int(v) for v in text.split(","))
+            except ValueError:
+                raise ValueError(f"teams expects team sizes separated by commas (16,32), got {text!r}") from None
+        elif isinstance(current, (int, float)):
+            try:
+                out[key] = type(current)(text)
+            except ValueError:
+                kind = "an integer" if isinstance(current, int) else "a number"
+                raise ValueError(f"{key} expects {kind}, got {text!r}") from None
         elif key == "world_sizes":  # one MIN-MAX side range per team: 40-96,64-128
             try:
                 out[key] = tuple((int(lo), int(hi)) for lo, hi in (r.split("-") for r in text.split(",")))

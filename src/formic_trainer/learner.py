@@ -1,6 +1,7 @@
 """The learner: network, optimiser, counters (the weights version is the updates so far),
 its own random stream per update (minibatch permutations), the optional moving average of the weights
-(``weight_average``), checkpoints, resume and the TensorBoard log.
+(``weight_average``), the fall guard (``guard_drop``: ``best.pt`` and rollbacks to it), checkpoints, resume
+and the TensorBoard log.
 :meth:`Learner.learn` makes one update from an actor's rollout. ``formic train`` and the ROS
 trainer node (``formic train-ros``) both drive it."""
 
@@ -18,6 +19,7 @@ from formic_agent.checkpoint import CheckpointError, initialise_from, load_netwo
 
 from .algorithm import make_optimizer, set_learning_rate, training_network, update
 from .config import TrainConfig, plain
+from .guard import BEST, ROLL_BACK, WATCH, FallGuard, Verdict
 from .rollout import Rollout
 
 # settings a run may change when it resumes
@@ -51,6 +53,7 @@ class Learner:
         self.seconds = 0.0
         self.cpu_seconds = 0.0
         self.averaged = None  # the moving average of the weights (a network), when weight_average > 0
+        self.guard = FallGuard.from_config(cfg)  # None when guard_drop is 0
         latest = self.run_dir / "latest.pt"
         stored_average = None
         if resume and latest.exists():
@@ -91,13 +94,15 @@ class Learner:
         progress = {"cpu_seconds": payload["progress"]["seconds"]} | payload["progress"]
         for key in PROGRESS:
             setattr(self, key, progress[key])
+        if self.guard is not None and "guard" in progress:
+            self.guard.load(progress["guard"])
         self.log(f"resumed from {path}: episode {self.episode}, update {self.updates}")
         return payload.get("averaged_state_dict")
 
     def learn(self, rollout: Rollout, env_steps: int | None = None) -> dict[str, float]:
         """One update from one rollout; ``env_steps``: the agent-steps it stands for (default:
         its learning agents')."""
-        set_learning_rate(self.optimizer, self.cfg, self.updates)
+        set_learning_rate(self.optimizer, self.cfg, self.updates, 1.0 if self.guard is None else self.guard.lr_factor)
         rng = learner_stream(self.cfg, self.updates)  # per update: a resumed run permutes as an uninterrupted one
         stats = update(self.net, self.optimizer, self.cfg, rollout, rng)
         if self.averaged is not None:
@@ -116,7 +121,9 @@ class Learner:
                      cpu_seconds: float = 0.0) -> None:
         """``episodes`` environment episodes have ended (one episode set), taking ``seconds`` of
         wall clock and ``cpu_seconds`` of CPU: their statistics go to the log under ``train/``,
-        and the checkpoint is written every ``checkpoint_every``."""
+        the fall guard sees their ``food_mean``, and the checkpoint is written every
+        ``checkpoint_every`` and after each step the guard takes (so that no rollback lies between
+        the last checkpoint and a best.pt newer than it: a resumed run rewrites that best.pt as it was)."""
         self.episode += episodes
         self.episode_sets += 1
         self.seconds += seconds
@@ -125,17 +132,33 @@ class Learner:
         if self.seconds > 0:
             self.writer.add_scalar("train/agent_steps_per_s", self.env_steps / self.seconds, self.episode)
         self.writer.flush()
-        if self.episode_sets % self.cfg.checkpoint_every == 0:
+        verdict = Verdict(WATCH) if self.guard is None else self.guard.observe(self.episode, stats["food_mean"])
+        if verdict.action == BEST:
+            self.save("best.pt")
+        if verdict.line:
+            self.log(verdict.line)
+        if verdict.action == ROLL_BACK:
+            self.roll_back()
+        if verdict.action != WATCH or self.episode_sets % self.cfg.checkpoint_every == 0:
             self.save()
+
+    def roll_back(self) -> None:
+        """The weights of ``best.pt`` with a fresh optimiser (the guard lowers the learning rate)."""
+        self.net.load_state_dict(read_checkpoint(self.run_dir / "best.pt")["state_dict"])
+        self.optimizer = make_optimizer(self.net, self.cfg)
+        set_learning_rate(self.optimizer, self.cfg, self.updates, self.guard.lr_factor)
 
     def record(self, prefix: str, stats: dict[str, float], step: int) -> None:
         for key, value in stats.items():
             self.writer.add_scalar(f"{prefix}/{key}", value, step)
 
     def save(self, name: str = "latest.pt") -> None:
-        """The training state as ``name``; with a weight average also ``averaged.pt``, written
-        after it (``name`` carries the average too, so a crash between the two loses nothing)."""
+        """The training state as ``name`` (with the guard's state); with a weight average also
+        ``averaged.pt``, written after ``latest.pt`` (which carries the average too, so a crash
+        between the two loses nothing)."""
         progress = {key: getattr(self, key) for key in PROGRESS}
+        if self.guard is not None:
+            progress["guard"] = self.guard.state()
         averaged = {} if self.averaged is None else {"averaged_state_dict": self.averaged.state_dict()}
         save_checkpoint(
             self.run_dir / name, self.net,
@@ -144,7 +167,7 @@ class Learner:
             progress=progress,
             **averaged,
         )
-        if self.averaged is not None:
+        if self.averaged is not None and name == "latest.pt":
             save_checkpoint(self.run_dir / "averaged.pt", self.averaged, progress=progress,
                             weight_average=self.cfg.weight_average)
 

@@ -6,7 +6,7 @@ hyper-parameter files) so that a shipped model is rebuilt from a file instead of
 card's hand-run commands. Each stage trains with :class:`~formic_trainer.train.Trainer` in
 ``DIR/<stage>``; its settings are the previous stage's with its own ``set`` on top (so a stage
 reads as "the one before with these switches"), its start is ``"scratch"``, an earlier stage's
-final weights or an earlier stage's checkpoint mean, always with a fresh optimiser. The
+final weights, its checkpoint mean or its fall guard's best checkpoint, always with a fresh optimiser. The
 candidates named by ``candidates`` are played on validation scenarios stored in ``DIR`` (never
 on a test set) and the best by :data:`SELECTION_RULE` is copied to ``DIR/model.pt``.
 
@@ -42,6 +42,10 @@ DERIVED = {"preset": "the recipe's preset", "seed": "--seed", "total_episodes": 
 _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]*")
 # TrainConfig (start, end) schedules counted in a stage's episodes: a scaled recipe scales them
 SCHEDULES = (("filter_anneal_start", "filter_anneal_end"), ("curriculum_start", "curriculum_end"))
+# ... and the episode the fall guard starts watching at
+EPISODE_SETTINGS = ("guard_after",)
+# a stage reference's part -> the file in the stage's folder: "NAME", "NAME.mean", "NAME.best"
+WEIGHTS = {"": "latest.pt", "mean": "mean.pt", "best": "best.pt"}
 
 
 class RecipeError(InputError):
@@ -52,7 +56,7 @@ class RecipeError(InputError):
 class Stage:
     name: str
     episodes: int
-    start: str  # "scratch", an earlier stage's name (its final weights) or "<stage>.mean"
+    start: str  # "scratch", an earlier stage's name (its final weights), "<stage>.mean" or "<stage>.best"
     settings: dict  # every TrainConfig field this stage sets, inherited ones included
     average: tuple[int, int] | None  # (first, every): the mean of the checkpoints first, first+every, ..., episodes
 
@@ -200,9 +204,10 @@ def _scaled(count: int, scale: float, unit: int) -> int:
 
 
 def _scaled_schedules(cfg: TrainConfig, scale: float) -> dict:
-    """Every schedule's start and end times ``scale``; one that has an end after its start keeps
-    one (an end equal to the start means "no schedule", e.g. the filter held on)."""
-    out = {}
+    """Every schedule's start and end (and every episode setting not 0) times ``scale``; one that has
+    an end after its start keeps one (an end equal to the start means "no schedule", e.g. the
+    filter held on)."""
+    out = {key: round(getattr(cfg, key) * scale) for key in EPISODE_SETTINGS if getattr(cfg, key)}
     for start_key, end_key in SCHEDULES:
         start, end = getattr(cfg, start_key), getattr(cfg, end_key)
         out[start_key] = round(start * scale)
@@ -229,7 +234,7 @@ def _parse(data: dict, path: Path, text: str, switch: str = "", scale: float = 1
         if not isinstance(name, str) or not _NAME.fullmatch(name) or name == "scratch" or name in earlier:
             raise RecipeError(f"stage {i + 1}: name {name!r} must be new, not 'scratch', of letters, digits, - and _")
         if start != "scratch":
-            _reference(start, earlier, f"{where}: start")
+            _reference(start, earlier, f"{where}: start", data["preset"])
         settings |= _settings(table.get("set", {}), f"{where}.set", defaults)
         staged = settings | switched  # a switch holds in every stage, over the stage's own settings
         try:
@@ -261,7 +266,7 @@ def _parse(data: dict, path: Path, text: str, switch: str = "", scale: float = 1
     if not isinstance(candidates, list) or not candidates or len(set(candidates)) < len(candidates):
         raise RecipeError("candidates must be a list of distinct stages or stage means")
     for candidate in candidates:
-        _reference(candidate, {s.name: s for s in stages}, "candidates")
+        _reference(candidate, {s.name: s for s in stages}, "candidates", data["preset"])
     table = _keys(data["validation"], "validation", {"seed", "size", "teams", "scenarios", "steps"})
     teams = table["teams"]
     if not isinstance(teams, list) or not teams or not all(type(n) is int and n > 0 for n in teams):
@@ -274,18 +279,23 @@ def _parse(data: dict, path: Path, text: str, switch: str = "", scale: float = 1
                   switch_names, scale)
 
 
-def _reference(ref: str, stages: dict[str, Stage], where: str) -> None:
-    """``ref`` names an (earlier) stage's final weights, or its mean when it has one."""
+def _reference(ref: str, stages: dict[str, Stage], where: str, preset: str) -> None:
+    """``ref`` names an (earlier) stage's final weights, its mean when it has one, or its best
+    checkpoint when its fall guard is on."""
     name, _, part = ref.partition(".") if isinstance(ref, str) else ("", "", "")
-    if name not in stages or part not in ("", "mean") or (part and stages[name].average is None):
-        raise RecipeError(f"{where} {ref!r} is not 'scratch', an earlier stage or the '.mean' of an earlier "
-                          f"stage with an average (stages: {', '.join(stages) or 'none'})")
+    if name not in stages or part not in WEIGHTS or (part == "mean" and stages[name].average is None):
+        raise RecipeError(f"{where} {ref!r} is not 'scratch', an earlier stage, the '.mean' of an earlier "
+                          f"stage with an average or the '.best' of an earlier stage with a fall guard "
+                          f"(stages: {', '.join(stages) or 'none'})")
+    if part == "best" and make_config(preset, **stages[name].settings).guard_drop <= 0:
+        raise RecipeError(f"{where} {ref!r}: stage {name!r} keeps no best.pt, its fall guard is off "
+                          "(set its guard_drop)")
 
 
 def weights_file(run_dir: Path, ref: str) -> Path:
-    """The file a stage reference names: ``DIR/<stage>/latest.pt`` or ``DIR/<stage>/mean.pt``."""
+    """The file a stage reference names: ``DIR/<stage>/latest.pt``, ``mean.pt`` or ``best.pt``."""
     name, _, part = ref.partition(".")
-    return run_dir / name / ("mean.pt" if part else "latest.pt")
+    return run_dir / name / WEIGHTS[part]
 
 
 def stage_config(recipe: Recipe, index: int, run_dir: Path, seed: int, threads: int | None = None) -> TrainConfig:
@@ -305,6 +315,15 @@ def _progress(checkpoint: Path) -> dict:
         return {"episode": 0, "cpu_seconds": 0.0}
     progress = read_checkpoint(checkpoint)["progress"]
     return {"episode": progress["episode"], "cpu_seconds": progress.get("cpu_seconds", progress["seconds"])}
+
+
+def shown_recipe(source: Path) -> str:
+    """A recipe's file as a claim records it: ``recipes/NAME.toml`` for this repository's recipes
+    (a committed run holds no machine's paths), the path as given otherwise."""
+    try:
+        return str(Path(source).resolve().relative_to(RECIPES.parent))
+    except ValueError:
+        return str(source)
 
 
 def held_identity(held: dict) -> str:
@@ -346,7 +365,7 @@ class _Run:
         claim = run_dir / "recipe.json"  # a folder holds one run: a skipped or resumed stage is this recipe's
         held = json.loads(claim.read_text()) if claim.exists() else None
         if held is None:
-            _write_json(claim, {"recipe": str(recipe.source), "seed": seed, "switch": recipe.switch,
+            _write_json(claim, {"recipe": shown_recipe(recipe.source), "seed": seed, "switch": recipe.switch,
                                 "scale": recipe.scale, "identity": recipe.identity, "text": recipe.text})
         elif (held["seed"], held_identity(held)) != (seed, recipe.identity):
             raise RecipeError(f"{run_dir} holds a run of another recipe, switch, scale or seed ({claim}): "
@@ -384,6 +403,10 @@ class _Run:
         self.snapshot(stage, episode)
         if stage.average is not None:
             self.average(stage)
+        wanted = {s.start for s in self.recipe.stages} | set(self.recipe.candidates)
+        if f"{stage.name}.best" in wanted and not (where / "best.pt").exists():
+            raise RecipeError(f"{where}: no best.pt, which {stage.name}.best names: its fall guard never saw "
+                              "guard_window episode sets after guard_after")
         self.episodes += stage.episodes
         self.cpu_seconds += _progress(where / "latest.pt")["cpu_seconds"]
 

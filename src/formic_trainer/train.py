@@ -74,6 +74,7 @@ class Trainer:
                 f"ep {learner.episode:6d} | food {stats['food_mean']:6.1f} ({per_env}) | "
                 f"loss {stats['loss']:.3f} pi {stats['policy']:.3f} v {stats['value']:.3f} "
                 f"ent {stats['entropy']:.3f} valid {stats['valid_accuracy']:.3f} act-ok {stats['valid_rate']:.2f} | "
+                f"kl {stats['approx_kl']:.4f} upd {stats['update_fraction']:.2f} | "
                 f"{imitation}I_h {stats['highway_intensity']:.2f} | {sps:,.0f} agent-steps/s | "
                 f"{learner.seconds / 60:.1f} min ({learner.cpu_seconds / 60:.1f} CPU)"
             )

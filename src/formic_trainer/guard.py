@@ -1,0 +1,77 @@
+"""The fall guard: a run that drifts away from what it had learned goes back to its best weights.
+
+Measured on the `paper` recipe (docs/training.md, "The guarded recipe"): a run can drift away
+from foraging within a few dozen episode sets and not come back. The guard watches the rolling
+mean of the training food over the last ``guard_window`` episode sets (from episode
+``guard_after`` on); at every new best it asks for ``best.pt``, and when the rolling mean falls
+below ``guard_drop`` x the best it asks for a rollback to ``best.pt`` at a lower learning rate,
+at most ``guard_max`` times. It decides only; the learner writes, loads and logs, and keeps the
+guard's :meth:`FallGuard.state` in its checkpoints so that a resumed run decides as an
+uninterrupted one.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+WATCH, BEST, ROLL_BACK, SPENT = "watch", "best", "roll back", "spent"
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """What the guard asks for after an episode set: WATCH (nothing), BEST (write best.pt),
+    ROLL_BACK (load best.pt, fresh optimiser, lr times ``lr_factor``) or SPENT (a fall after the
+    last rollback: only ``line`` is logged); ``line`` says why, for ROLL_BACK and SPENT."""
+
+    action: str
+    line: str = ""
+
+
+class FallGuard:
+    def __init__(self, drop: float, window: int, after: int, most: int, lr_factor: float):
+        self.drop, self.window_size, self.after, self.most, self.factor = drop, window, after, most, lr_factor
+        self.window: list[float] = []  # the food of the last episode sets watched
+        self.best: float | None = None  # the best full-window rolling mean ...
+        self.best_episode = 0  # ... and the episode it was reached at
+        self.events = 0  # rollbacks so far
+        self.lr_factor = 1.0  # the learning rate's factor now: lr_factor ** events
+
+    @classmethod
+    def from_config(cls, cfg) -> FallGuard | None:
+        """The guard a TrainConfig asks for (None with ``guard_drop`` 0)."""
+        if cfg.guard_drop <= 0:
+            return None
+        return cls(cfg.guard_drop, cfg.guard_window, cfg.guard_after, cfg.guard_max, cfg.guard_lr_factor)
+
+    def observe(self, episode: int, food: float) -> Verdict:
+        """An episode set has ended with ``episode`` episodes played and mean food ``food``
+        over its worlds. Sets ending at or before ``after`` are not watched (those played from
+        episode ``after`` on are)."""
+        if episode <= self.after:
+            return Verdict(WATCH)
+        self.window = [*self.window, float(food)][-self.window_size:]
+        if len(self.window) < self.window_size:
+            return Verdict(WATCH)
+        rolling = sum(self.window) / len(self.window)
+        if self.best is None or rolling > self.best:
+            self.best, self.best_episode = rolling, episode
+            return Verdict(BEST)
+        if rolling >= self.drop * self.best:
+            return Verdict(WATCH)
+        self.window = []
+        fall = f"guard: rolling food {rolling:.1f} < {self.drop:g} x best {self.best:.1f} (episode {episode}): "
+        if self.events >= self.most:
+            return Verdict(SPENT, fall + f"no rollback left ({self.events}/{self.most} events)")
+        self.events += 1
+        self.lr_factor *= self.factor
+        return Verdict(ROLL_BACK, fall + f"back to episode {self.best_episode}'s weights, lr x{self.lr_factor:g}, "
+                                         f"event {self.events}/{self.most}")
+
+    def state(self) -> dict:
+        """Everything :meth:`observe` depends on, for a checkpoint's progress."""
+        return {"window": list(self.window), "best": self.best, "best_episode": self.best_episode,
+                "events": self.events, "lr_factor": self.lr_factor}
+
+    def load(self, state: dict) -> None:
+        self.window, self.best, self.best_episode = list(state["window"]), state["best"], state["best_episode"]
+        self.events, self.lr_factor = state["events"], state["lr_factor"]
