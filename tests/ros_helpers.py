@@ -13,7 +13,7 @@ import time
 from pathlib import Path
 
 from formic_ros.env import ros_environment
-from formic_ros.processes import remove_stale_shm
+from formic_ros.launch.processes import remove_stale_shm
 
 ROOT = Path(__file__).resolve().parents[1]
 _domains = random.Random(os.getpid() ^ int(time.time()))

@@ -1,6 +1,7 @@
 """Bad input to the ``formic`` command ends in one line on stderr and a non-zero status, never a
 traceback: too many agents, corrupt scenario files, missing or foreign model files, a resume
-with other settings, a non-positive episode length. Also: a stored scenario set has the
+with other settings, a non-positive episode length, a bad ``--set``, and files or worlds over the
+limits of formic_world.limits (refused before anything is allocated). Also: a stored scenario set has the
 episodes ``formic eval`` runs, and Ctrl-C of a node logs no FATAL error."""
 
 from __future__ import annotations
@@ -9,6 +10,7 @@ import json
 import pickle
 import subprocess
 import sys
+import time
 import zipfile
 from pathlib import Path
 
@@ -16,9 +18,12 @@ import pytest
 import torch
 from click.testing import CliRunner
 
+from formic_agent.checkpoint import CHECKPOINT_FORMAT, CHECKPOINT_VERSION
+from formic_agent.inputs import NETWORK_PRESETS
 from formic_cli.main import cli
 from formic_eval.paper import PAPER_STEPS
 from formic_world import Scenario, WorldConfig, generate_scenario
+from formic_world.limits import MAX_CHECKPOINT_BYTES, MAX_SCENARIO_BYTES
 
 TINY_WORLD = ["--size", "16", "--agents", "4", "--steps", "5"]
 TINY_TRAINING = ["--set", "teams=4", "--set", "world_sizes=16-16", "--set", "episode_steps=32",
@@ -80,6 +85,26 @@ def test_a_corrupt_scenario_file_is_one_line(tmp_path, kind, command):
     assert_one_line_error(formic(*args), f"{path}: {reason}")
 
 
+def test_a_scenario_over_the_world_limits_is_refused_at_once(tmp_path):
+    path = tmp_path / "tall.json"
+    path.write_text(_scenario_text(config={"height": 1_000_000}))
+    start = time.monotonic()
+    result = formic("sim", "--scenario", str(path), "--out", str(tmp_path))
+    assert time.monotonic() - start < 1.0
+    assert_one_line_error(result, f"{path}: malformed scenario: height 1000000 is over the limit of 2048")
+    process = formic_process("sim", "--scenario", str(path), "--out", str(tmp_path))
+    assert (process.returncode, process.stderr, process.stdout) == (1, f"Error: {path}: malformed scenario: "
+                                                                       "height 1000000 is over the limit of 2048\n", "")
+
+
+def test_a_scenario_file_over_the_size_limit_is_refused_unread(tmp_path):
+    path = tmp_path / "huge.json"
+    with open(path, "wb") as handle:  # sparse: no disk is written
+        handle.truncate(MAX_SCENARIO_BYTES + 1)
+    result = formic("sim", "--scenario", str(path), "--out", str(tmp_path))
+    assert_one_line_error(result, f"{path}: 67,108,865 bytes is over the limit of 67,108,864 for a scenario file")
+
+
 def test_eval_names_the_corrupt_file_of_a_scenario_directory(tmp_path):
     (tmp_path / "set").mkdir()
     (tmp_path / "set" / "bad.json").write_bytes(bytes(range(256)))
@@ -98,7 +123,7 @@ def test_world_and_run_report_a_corrupt_scenario_file_in_one_line(tmp_path):
 def _foreign_files(directory: Path) -> dict[str, tuple[Path, str]]:
     """Files that are no ForMIC checkpoint -> (path, the reason after "PATH: ")."""
     unreadable = "not a readable ForMIC checkpoint"
-    files = {"garbage": bytes(range(7, 256)), "empty": b""}
+    files = {"garbage": bytes(range(7, 256)), "empty": b"", "text": b"hello, world\n"}
     paths = {}
     for name, content in files.items():
         paths[name] = directory / f"{name}.pt"
@@ -115,12 +140,14 @@ def _foreign_files(directory: Path) -> dict[str, tuple[Path, str]]:
     paths["truncated"] = directory / "truncated.pt"
     paths["truncated"].write_bytes((Path(__file__).parents[1] / "models" / "formic_paper.pt").read_bytes()[:3000])
     plain = f"{unreadable} (not a torch file of tensors and plain data)"
+    no_zip = "not a ForMIC checkpoint (torch.save writes a zip archive; this is something else)"
     return {
-        "garbage": (paths["garbage"], plain),
-        "empty": (paths["empty"], f"{unreadable} (the file is empty or cut short)"),
+        "garbage": (paths["garbage"], no_zip),
+        "empty": (paths["empty"], "not a ForMIC checkpoint (the file is empty)"),
+        "text": (paths["text"], no_zip),  # torch itself would fail with "KeyError: 104"
         "tensor": (paths["tensor"], "not a ForMIC checkpoint"),
         "module": (paths["module"], plain),
-        "code": (paths["code"], plain),
+        "code": (paths["code"], no_zip),
         "zip": (paths["zip"], f"{unreadable} (RuntimeError: [enforce fail at inline_container.cc:180] . file in "
                               "archive is not in a subdirectory: notes.txt)"),
         "truncated": (paths["truncated"], f"{unreadable} (RuntimeError: PytorchStreamReader failed reading zip "
@@ -128,12 +155,39 @@ def _foreign_files(directory: Path) -> dict[str, tuple[Path, str]]:
     }
 
 
-@pytest.mark.parametrize("kind", ["garbage", "empty", "tensor", "module", "code", "zip", "truncated"])
+@pytest.mark.parametrize("kind", ["garbage", "empty", "text", "tensor", "module", "code", "zip", "truncated"])
 def test_a_file_that_is_no_checkpoint_is_one_line_without_unsafe_advice(tmp_path, kind):
     path, reason = _foreign_files(tmp_path)[kind]
     result = formic("sim", *TINY_WORLD, "--model", str(path), "--out", str(tmp_path))
     assert_one_line_error(result, f"{path}: {reason}")
     assert "weights_only" not in result.output
+
+
+def test_a_text_file_named_pt_is_refused_before_torch_reads_it(tmp_path, monkeypatch):
+    path = tmp_path / "x.pt"
+    path.write_text("e" * 40)  # torch would read it as a legacy pickle and fail with "KeyError: 101"
+    monkeypatch.setattr(torch, "load", None)  # a call would fail with a TypeError instead
+    result = formic("sim", *TINY_WORLD, "--model", str(path), "--out", str(tmp_path))
+    assert_one_line_error(result, f"{path}: not a ForMIC checkpoint (torch.save writes a zip archive; this is "
+                                  "something else)")
+
+
+def test_a_model_file_over_the_size_limit_is_refused_unread(tmp_path):
+    path = tmp_path / "huge.pt"
+    with open(path, "wb") as handle:  # sparse: no disk is written
+        handle.truncate(MAX_CHECKPOINT_BYTES + 1)
+    result = formic("sim", *TINY_WORLD, "--model", str(path), "--out", str(tmp_path))
+    assert_one_line_error(result, f"{path}: 536,870,913 bytes is over the limit of 536,870,912 for a model file")
+
+
+@pytest.mark.parametrize("field", ["conv1", "conv2", "fc", "rnn", "channels"])
+def test_a_checkpoint_asking_for_a_network_over_the_width_limit_is_refused_before_allocation(tmp_path, field):
+    path = tmp_path / "wide.pt"
+    network = {**NETWORK_PRESETS["cpu"].to_dict(), field: 1_000_000}  # allocated, fc alone would take 4 TB
+    torch.save({"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION, "network": network, "state_dict": {}},
+               path)
+    result = formic("sim", *TINY_WORLD, "--model", str(path), "--out", str(tmp_path))
+    assert_one_line_error(result, f"{path}: network {field} 1000000 is over the limit of 4096")
 
 
 def test_eval_and_an_agent_host_report_a_foreign_model_the_same_way(tmp_path):
@@ -162,6 +216,21 @@ def test_resuming_training_with_other_settings_is_one_line(tmp_path):
     again = formic("train", "--run-dir", str(run_dir), "--episodes", "1", *TINY_TRAINING, "--set", "lr=0.001")
     assert_one_line_error(again, f"{run_dir / 'latest.pt'} was trained with different settings (lr); use the same "
                                  "settings, a new --run-dir, or --fresh")
+
+
+@pytest.mark.parametrize("setting, expected", [
+    ("lr=abc", "lr expects a number, got 'abc'"),
+    ("seed=1.5", "seed expects an integer, got '1.5'"),
+    ("pheromones=maybe", "pheromones expects true/false, got 'maybe'"),
+    ("teams=8,x", "teams expects team sizes separated by commas (16,32), got '8,x'"),
+    ("world_sizes=40:96", "world_sizes expects MIN-MAX side ranges, one per team (40-96,64-128), got '40:96'"),
+    ("obstacle_range=0,1", "obstacle_range cannot be set from the command line"),
+    ("optimizer=sgd", "optimizer must be one of 'nadam', 'adam', not 'sgd'"),
+    ("lrr=0.1", "'lrr' is not a TrainConfig field (did you mean lr?): the settings are listed in docs/training.md"),
+    ("lr", "--set 'lr': expected FIELD=VALUE with a TrainConfig field"),
+])
+def test_every_set_error_names_its_key(tmp_path, setting, expected):
+    assert_one_line_error(formic("train", "--run-dir", str(tmp_path), "--set", setting), expected)
 
 
 def test_exporting_from_a_run_directory_without_a_checkpoint_is_one_line(tmp_path):

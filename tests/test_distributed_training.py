@@ -50,7 +50,7 @@ def test_a_training_world_imports_no_torch():
     import subprocess
     import sys
 
-    code = ("import sys, formic_trainer.config, formic_trainer.worlds, formic_ros.training_world; "
+    code = ("import sys, formic_trainer.config, formic_trainer.worlds, formic_ros.world.training; "
             "print('torch' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"

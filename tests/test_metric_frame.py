@@ -47,7 +47,7 @@ def test_viewer_map_and_markers_lie_in_the_frame_and_replay_checks_them_there():
     from builtin_interfaces.msg import Time
 
     from formic_record import checks
-    from formic_ros import viewer_msgs
+    from formic_ros.world import viewer_msgs
     from formic_world import make_world
 
     world = make_world(height=16, width=16, n_agents=4, seed=3)

@@ -118,9 +118,9 @@ from formic_agent.policy import AgentBatch
 from formic_interfaces.msg import AgentAction, AgentObservation
 from formic_ros import convert, qos
 import formic_topics as topics
-from formic_ros.agent_host import PARTIAL_WAIT_S, AgentHost
+from formic_ros.drivers.agent_host import PARTIAL_WAIT_S, AgentHost
 from formic_ros.env import ros_session
-from formic_ros.ownership import Ownership
+from formic_ros.world.ownership import Ownership
 from formic_world import World, WorldConfig, generate_scenario
 
 with ros_session(int(sys.argv[1])) as executor:
@@ -186,7 +186,7 @@ def test_stale_shared_memory_is_removed_and_live_memory_kept(tmp_path):
     import fcntl
     import os
 
-    from formic_ros.processes import SHM_MIN_AGE_S, remove_stale_shm
+    from formic_ros.launch.processes import SHM_MIN_AGE_S, remove_stale_shm
 
     old = time.time() - SHM_MIN_AGE_S - 1
     for name in ("fastrtps_00000000000000aa", "fastrtps_00000000000000bb", "fastrtps_00000000000000cc"):
@@ -209,20 +209,18 @@ def test_ctrl_c_during_a_child_wait_leaves_the_child_reapable():
     import subprocess
     import threading
 
-    from formic_ros.processes import Child
+    from formic_ros.launch.processes import Child
+    from formic_ros.signals import handling
 
     child = Child("sleeper", subprocess.Popen(["sleep", "30"], start_new_session=True))
     # Python's own Ctrl-C handler: a suite started in the background (`cmd &`) inherits SIGINT
     # ignored, and Python then installs none
-    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
-    try:
+    with handling((signal.SIGINT,), signal.default_int_handler):
         for _ in range(20):  # interrupts landing at different moments of the wait loop
             threading.Timer(0.01, os.kill, (os.getpid(), signal.SIGINT)).start()
             with pytest.raises(KeyboardInterrupt):
                 child.wait(5.0)
             assert child.alive
-    finally:
-        signal.signal(signal.SIGINT, previous)
     os.killpg(child.process.pid, signal.SIGKILL)
     assert child.poll(block=True) == -signal.SIGKILL
     assert not child.alive and child.process.poll() == -signal.SIGKILL

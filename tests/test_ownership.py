@@ -1,4 +1,4 @@
-"""Only an agent's owner drives it: the README's robot program drives its --external agent as
+"""Only an agent's owner drives it: the robot program in docs/ros.md drives its --external agent as
 written; a spoofing node changes nothing; two nodes claiming one agent, a second node on an owned
 agent's topic, or a claim from a node the run did not start give a clear error with the first
 owner kept. Real processes, bounded and reaped."""
@@ -137,7 +137,7 @@ def test_a_claim_under_the_first_owners_name_waits_before_it_takes_over(monkeypa
 
     from std_msgs.msg import String
 
-    from formic_ros import ownership
+    from formic_ros.world import ownership
 
     for graph_after, owner_after in ((1, "second"), (2, "first")):
         clock = [100.0]
@@ -156,12 +156,12 @@ def test_a_claim_under_the_first_owners_name_waits_before_it_takes_over(monkeypa
         assert world.owner_of[2] == owner_after
 
 
-# ------------------------------------------------------------------ the README's robot program
+# ------------------------------------------------------------------ the robot program of docs/ros.md
 def readme_robot_program() -> str:
-    """The README's robot node, exactly as a user pastes it (the block after its marker)."""
-    text = (ROOT / "README.md").read_text()
+    """docs/ros.md's robot node, exactly as a user pastes it (the block after its marker)."""
+    text = (ROOT / "docs" / "ros.md").read_text()
     match = re.search(r"<!-- docs-test: robot-snippet -->\n```python\n(.*?)```", text, re.S)
-    assert match, "README.md lost its robot program"
+    assert match, "docs/ros.md lost its robot program"
     return match.group(1)
 
 
@@ -231,7 +231,7 @@ def test_a_node_beside_the_host_halts_its_agent_instead_of_hijacking_it(tmp_path
 
 OUTSIDER = """
 import sys, rclpy
-from formic_ros.ownership import Claim
+from formic_ros.drivers.claim import Claim
 rclpy.init(domain_id=int(sys.argv[1]))
 node = rclpy.create_node("early_bird", namespace="/formic")
 claim = Claim(node, range(8))
@@ -272,8 +272,9 @@ def test_a_claim_from_a_node_the_run_did_not_start_is_refused(tmp_path):
 def test_nobody_joined_names_the_refused_claimant(monkeypatch):
     from std_msgs.msg import String
 
-    from formic_ros import ownership
-    from formic_ros.lockstep import Lockstep, NobodyJoined
+    from formic_ros.errors import NobodyJoined
+    from formic_ros.world import ownership
+    from formic_ros.world.lockstep import Lockstep
 
     node = GraphNode()
     world = ownership.Ownership(node, offer_batch=None, subscribe=lambda *args: None, external=(3,),
@@ -289,8 +290,7 @@ def test_nobody_joined_names_the_refused_claimant(monkeypatch):
             time.sleep(min(timeout_sec, 0.01))
 
     lockstep = Lockstep(4, log=lambda *a: None, logger=node.get_logger(), deadline_s=0.1, startup_timeout_s=0.05,
-                        rate_hz=None)
-    lockstep.why_absent = world.why_nobody_answered
+                        rate_hz=None, why_absent=world.why_nobody_answered)
     lockstep.inbox.open(0)
     with pytest.raises(NobodyJoined, match=r"refused a claim: /formic/early_bird claims agents 0-2, which this run's "
                                            r"own drivers \(/formic/agent_host_0\) drive \(--external: 3\)"):

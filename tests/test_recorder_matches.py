@@ -19,7 +19,7 @@ from formic_record.bag import BagWriter
 from formic_ros import qos
 import formic_topics as topics
 from formic_ros.graph import REPORT_GRAPH_LAG_S, RecorderReports, recorders_matched
-from formic_ros.recorder import Recorder, RecorderOptions
+from formic_ros.recording.recorder import Recorder, RecorderOptions
 
 rclpy.init(domain_id=int(sys.argv[1]))
 executor = SingleThreadedExecutor()

@@ -46,7 +46,8 @@ from formic_interfaces.msg import (ActionBatch, AgentAction, AgentObservation, O
                                    ScenarioDescription, WorldState)
 from std_msgs.msg import Float64
 from formic_agent.policy import AgentBatch
-from formic_ros import convert, qos, viewer_msgs
+from formic_ros import convert, qos
+from formic_ros.world import viewer_msgs
 import formic_topics as topics
 from formic_world import World, WorldConfig, generate_scenario
 from formic_world.metric_frame import MetricFrame
@@ -456,7 +457,7 @@ def test_republish_plays_the_topics_back(session, monkeypatch):
     from rclpy.qos import QoSProfile, ReliabilityPolicy
 
     from formic_interfaces.msg import ScenarioDescription, WorldState
-    from formic_ros.recorder import subscription_qos
+    from formic_ros.recording.recorder import subscription_qos
 
     for key in ("ROS_DOMAIN_ID", "FASTDDS_BUILTIN_TRANSPORTS", "ROS_AUTOMATIC_DISCOVERY_RANGE"):
         monkeypatch.setenv(key, ros_env()[key])
@@ -657,7 +658,7 @@ def test_a_stopped_recorder_records_what_already_arrived_before_it_closes(tmp_pa
 
     import formic_topics as topics
     from formic_ros.qos import reliable
-    from formic_ros.recorder import RecorderOptions, record
+    from formic_ros.recording.recorder import RecorderOptions, record
 
     sent, name = 50, topics.full_name(topics.DEFAULT_NAMESPACE, topics.SUMMARY)
 

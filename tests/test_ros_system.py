@@ -27,8 +27,8 @@ from formic_runtime.episode import run_episode  # noqa: E402
 from formic_agent.policy import AgentBatch  # noqa: E402
 from formic_runtime.team import Team, parse_ids  # noqa: E402
 from formic_ros import convert, wire  # noqa: E402
-from formic_ros.lockstep import ActionInbox, RateLimitedLog  # noqa: E402
-from formic_ros.ownership import Claim  # noqa: E402
+from formic_ros.drivers.claim import Claim  # noqa: E402
+from formic_ros.world.lockstep import ActionInbox, RateLimitedLog  # noqa: E402
 from formic_world import NO_ACTION, World, WorldConfig, generate_scenario  # noqa: E402
 
 pytestmark = pytest.mark.filterwarnings("ignore:module 'sre_:DeprecationWarning")

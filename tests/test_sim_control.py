@@ -31,7 +31,7 @@ from geometry_msgs.msg import Vector3  # noqa: E402
 from ros_helpers import ROOT, Spawner, fresh_domain_id, ros_test_environment  # noqa: E402
 
 from formic_ros.parameters import parameter_value  # noqa: E402
-from formic_ros.sim_entities import FilterError, select, world_entities  # noqa: E402
+from formic_ros.world.entities import FilterError, select, world_entities  # noqa: E402
 from formic_runtime.episode import run_episode  # noqa: E402
 from formic_world import World, WorldConfig, generate_scenario  # noqa: E402
 from formic_world.metric_frame import MetricFrame  # noqa: E402

@@ -29,8 +29,8 @@ from formic_agent.checkpoint import CheckpointError, read_checkpoint  # noqa: E4
 from formic_agent.learned import LearnedPolicy  # noqa: E402
 from formic_agent.inputs import N_EXTRA_INPUTS  # noqa: E402
 from formic_ros.convert import decode_rollout, encode_rollout  # noqa: E402
-from formic_ros.learning_host import apply_weights  # noqa: E402
-from formic_ros.trainer_node import TrainerNode  # noqa: E402
+from formic_ros.drivers.host_actor import apply_weights  # noqa: E402
+from formic_ros.drivers.trainer import TrainerNode  # noqa: E402
 from formic_topics import EXTRA_INPUT_COUNT  # noqa: E402
 from formic_trainer.actor import Actor  # noqa: E402
 from formic_trainer.config import make_config  # noqa: E402
@@ -217,9 +217,9 @@ def test_trainer_and_host_name_the_peer_they_wait_for(tmp_path, monkeypatch):
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
 
-    from formic_ros import trainer_node
+    from formic_ros.drivers import trainer as trainer_node
+    from formic_ros.drivers.learning_host import LearningHost
     from formic_ros.graph import publishers_of
-    from formic_ros.learning_host import LearningHost
 
     # A domain of its own: the graph must hold exactly this test's nodes, and a participant of an
     # earlier test in this process (the "/formic/host" above) can outlive its context for a while.

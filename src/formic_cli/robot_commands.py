@@ -56,7 +56,7 @@ def robot_run_options(fields: dict):
         if simulate:
             raise click.UsageError("--robots-sim needs --robots")
         return None
-    from formic_ros.robot_launch import RobotRunOptions  # (rclpy: only for a run with robots)
+    from formic_ros.launch.robots import RobotRunOptions
 
     return RobotRunOptions(agents=robots, simulate=simulate, cell_size=cell_size, seed=fields["seed"], **settings)
 
@@ -88,8 +88,9 @@ def robot(agents, policy, model, greedy, cmd_vel, odom, pose, odom_origin, max_s
           domain_id, once) -> None:
     """Robot bridge: a robot agent's decisions to cmd_vel, the robot's odometry back to its cell."""
     from formic_robots.controller import ControllerSettings
-    from formic_ros.lockstep import WorldLost
-    from formic_ros.robot_bridge import BridgeSettings, parse_origin, serve_robots
+    from formic_ros.errors import WorldLost
+    from formic_ros.robots.bridge import parse_origin, serve_robots
+    from formic_ros.robots.settings import BridgeSettings
 
     with click_errors(ValueError, FileNotFoundError, WorldLost, interrupted=""):
         parse_origin(odom_origin)
@@ -122,7 +123,8 @@ def robots_sim(agents, cell_size, origin_x, origin_y, max_speed, max_turn, accel
                cmd_vel, odom, namespace, domain_id, once) -> None:
     """Simulated differential-drive robots: cmd_vel in, odometry and tf out, placed at their agents' start cells."""
     from formic_robots.unicycle import UnicycleLimits
-    from formic_ros.robots_sim import SimSettings, serve_robots_sim
+    from formic_ros.robots.settings import SimSettings
+    from formic_ros.robots.sim import serve_robots_sim
 
     with click_errors(ValueError, interrupted=""):
         limits = UnicycleLimits(max_linear=max_speed, max_angular=max_turn, linear_accel=accel,

@@ -5,7 +5,6 @@ inside the commands)."""
 
 from __future__ import annotations
 
-import signal
 import sys
 
 import click
@@ -73,13 +72,6 @@ def _parse_external(text: str | None) -> tuple[int, ...]:
         raise click.BadParameter(str(exc), param_hint="--external") from exc
 
 
-def _stop_signals_as_interrupt() -> None:
-    """SIGTERM and SIGHUP stop a launch as Ctrl-C does (KeyboardInterrupt): every child is
-    stopped and the recording closed (by default SIGHUP would end the launcher at once)."""
-    for signum in (signal.SIGTERM, signal.SIGHUP):
-        signal.signal(signum, signal.default_int_handler)
-
-
 @click.command()
 @hosts_network_option
 @world_options
@@ -96,9 +88,8 @@ def _stop_signals_as_interrupt() -> None:
 @json_option()
 def run(scenario_file, external, live_view, view_port, view_wait, as_json, **fields) -> None:
     """The main job: world, agent hosts (or the planner) and recorder as separate ROS processes."""
-    from formic_ros.launcher import RunOptions, launch
+    from formic_ros.launch.launcher import RunOptions, launch
 
-    _stop_signals_as_interrupt()
     robots = robot_run_options(fields)  # --robots and the rest (docs/robots.md)
     scenario = scenario_from(scenario_file, fields)  # takes the world options out: RunOptions' fields remain
     options = RunOptions(scenario=scenario, external=_parse_external(external), robots=robots, **fields,
@@ -160,10 +151,10 @@ def run(scenario_file, external, live_view, view_port, view_wait, as_json, **fie
 def world(scenario_file, domain_id, deadline_ms, stay, train_config, episodes, first_episode, live_view, view_port,
           view_wait, as_json, **fields) -> None:
     """The world node: owns the simulation and steps it with the agents over ROS."""
-    from formic_ros.lockstep import RunError
-    from formic_ros.training_world import require_one_world, serve_training_world
-    from formic_ros.world_node import serve_world
-    from formic_ros.world_options import WorldNodeOptions
+    from formic_ros.errors import RunError
+    from formic_ros.world.options import WorldNodeOptions
+    from formic_ros.world.serve import serve_world
+    from formic_ros.world.training import require_one_world, serve_training_world
 
     world_kw = {name: fields.pop(name) for name in WORLD_OPTION_NAMES}  # the rest are WorldNodeOptions'
     options = WorldNodeOptions(deadline_s=deadline_ms / 1e3, view_port=live_view_port(live_view, view_port, view_wait),
@@ -208,14 +199,14 @@ def world(scenario_file, domain_id, deadline_ms, stay, train_config, episodes, f
 def agents(ids, policy, model, greedy, transport, namespace, domain_id, name, threads, once, train_config,
            switch_weights, episodes, first_episode) -> None:
     """An agent host: many agents (each its own node by default) in one process."""
-    from formic_ros.agent_host import serve_agents
-    from formic_ros.lockstep import WorldLost
+    from formic_ros.drivers.agent_host import serve_agents
+    from formic_ros.errors import WorldLost
     from formic_runtime.team import parse_ids
 
     with click_errors(ValueError, FileNotFoundError, WorldLost, interrupted=""):
         agent_ids = parse_ids(ids)
         if train_config:
-            from formic_ros.learning_host import serve_learning_agents
+            from formic_ros.drivers.learning_host import serve_learning_agents
             from formic_trainer.config import load_train_config
 
             if transport != "batched":
@@ -246,9 +237,8 @@ def agents(ids, policy, model, greedy, transport, namespace, domain_id, name, th
 def train_ros(preset, train_config, overrides, as_json, **options) -> None:
     """Distributed training: trainer node, world (training scenarios) and a learning host as
     separate ROS processes; same settings and seeds give `formic train`'s learning curve."""
-    from formic_ros.launcher import TrainRunOptions, launch_training
+    from formic_ros.launch.launcher import TrainRunOptions, launch_training
 
-    _stop_signals_as_interrupt()
     with click_errors(RuntimeError, ValueError, TypeError, FileNotFoundError,
                       interrupted="interrupted: every process stopped (the trainer saved its checkpoint)"):
         cfg = training_config(preset, train_config, overrides)
@@ -266,8 +256,8 @@ def train_ros(preset, train_config, overrides, as_json, **options) -> None:
 @click.option("--once", is_flag=True, help="Exit when the episode ends.")
 def planner(namespace, domain_id, once) -> None:
     """The centralized planner node: reads the full state, commands every agent."""
-    from formic_ros.lockstep import WorldLost
-    from formic_ros.planner_node import serve_planner
+    from formic_ros.drivers.planner import serve_planner
+    from formic_ros.errors import WorldLost
 
     with click_errors(WorldLost, interrupted=""):
         mismatches = serve_planner(namespace, once=once, domain_id=domain_id)
@@ -285,7 +275,7 @@ def planner(namespace, domain_id, once) -> None:
 @json_option(help=None)
 def bench_ros(teams, transports, steps, size, repeats, domain_id, as_json) -> None:
     """Lockstep steps/s of world + one host process over ROS, random policy (messaging cost)."""
-    from formic_ros.bench import bench_ros as measure
+    from formic_ros.launch.bench import bench_ros as measure
 
     results = []
     for transport in transports.split(","):

@@ -9,6 +9,8 @@ from pathlib import Path
 
 import click
 
+from formic_ros.drivers.lag import DEFAULT_MAX_LAG  # no rclpy, no torch
+
 from .options import (PROCESS_DOMAIN_HELP, domain_option, fresh_option, hosts_network_option, json_option,
                       live_view_port, open_live_view, preset_option, ros_options, ros_run_dir_option,
                       train_config_option, training_config, view_options)
@@ -58,7 +60,7 @@ def _split(values: tuple[str, ...]) -> tuple[str, ...]:
 def record_command(out, topics, namespace, domain_id, model, duration, chunk_kb, as_json) -> None:
     """Record ForMIC topics into a rosbag2 recording (MCAP) until interrupted."""
     from formic_agent.checkpoint import checkpoint_id
-    from formic_ros.recorder import RecorderOptions, record
+    from formic_ros.recording.recorder import RecorderOptions, record
 
     if Path(out).exists():
         raise click.ClickException(f"{out} exists; a recording is never written over")
@@ -121,7 +123,7 @@ def replay_command(recording, verify, republish, repair, live_view, view_port, v
             if not report.ok:
                 sys.exit(1)
         elif republish:
-            from formic_ros.recorder import republish as play
+            from formic_ros.recording.recorder import republish as play
 
             result = play(recording, rate=rate, domain_id=domain_id, topics=_split(topics), wait_s=wait, log=_log)
             emit(as_json, result, f"republished {result['messages']} messages on "
@@ -150,14 +152,14 @@ def replay_command(recording, verify, republish, repair, live_view, view_port, v
 @click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE", help="Override a training field.")
 @click.option("--max-updates", type=int, help="Stop after this many updates (default: at Ctrl-C or SIGTERM).")
 @click.option("--max-rollouts", type=int, help="Stop after this many rollouts, learned from or dropped.")
-@click.option("--max-lag", default=4, show_default=True,
+@click.option("--max-lag", default=DEFAULT_MAX_LAG, show_default=True,
               help="Learn from rollouts at most this many weights versions old; drop older ones.")
 @ros_options(domain_help=PROCESS_DOMAIN_HELP)
 @json_option(help="Print one JSON object at the end.")
 def trainer_command(preset, run_dir, fresh, train_config, overrides, max_updates, max_rollouts, max_lag, namespace,
                     domain_id, as_json) -> None:
     """The trainer node: learn from the hosts' rollouts, broadcast versioned weights."""
-    from formic_ros.trainer_node import serve_trainer
+    from formic_ros.drivers.trainer import serve_trainer
 
     with click_errors(TypeError, ValueError):
         cfg = training_config(preset, train_config, overrides)

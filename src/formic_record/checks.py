@@ -21,7 +21,7 @@ def stamp_ns(stamp) -> int:
 
 
 def sim_time_ns(step: int, dt: float) -> int:
-    """As :func:`formic_ros.viewer_msgs.sim_time` stamps step ``step``."""
+    """As :func:`formic_ros.world.viewer_msgs.sim_time` stamps step ``step``."""
     return int(round(step * dt * 1e9))
 
 

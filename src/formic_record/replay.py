@@ -1,5 +1,5 @@
 """Replaying recordings: re-simulate to verify, render or view (republishing, which needs
-rclpy, is :func:`formic_ros.recorder.republish`).
+rclpy, is :func:`formic_ros.recording.recorder.republish`).
 
 The core is deterministic, so the recorded scenario and the actions the world applied
 (``applied_actions``, 255 = none arrived) reproduce every state: verification

@@ -4,7 +4,7 @@ Observations are :class:`formic_agent.policy.AgentBatch` rows (batched or one me
 agent), actions int64 arrays (NO_ACTION -1 travels as 255), rollouts
 :class:`formic_trainer.rollout.Rollout` (field for field), weights a :class:`WeightsPayload`.
 Array fields and the compact observation encoding are in :mod:`formic_ros.wire`; viewer
-messages (one way) in :mod:`formic_ros.viewer_msgs`. :func:`checked_subscription` is how a
+messages (one way) in :mod:`formic_ros.world.viewer_msgs`. :func:`checked_subscription` is how a
 node takes messages from others: bytes that do not decode are reported, not dropped unseen.
 """
 

@@ -13,12 +13,12 @@ Set these before ``rclpy.init``: rcl reads them when the context starts.
 from __future__ import annotations
 
 import os
-import signal
 import sys
 from collections.abc import Iterator, Mapping
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from pathlib import Path
-from types import FrameType
+
+from .signals import INTERRUPT_SIGNALS, InterruptibleExecutor, handling
 
 DISCOVERY_VARIABLE = "ROS_AUTOMATIC_DISCOVERY_RANGE"
 DOMAIN_VARIABLE = "ROS_DOMAIN_ID"
@@ -111,60 +111,6 @@ def check_domain_id(domain_id: int | None) -> None:
         raise ValueError(f"ROS domain id {domain_id} is outside 0-232")
 
 
-STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
-
-
-@contextmanager
-def stop_requests() -> Iterator[list]:
-    """SIGINT, SIGTERM and SIGHUP append to the yielded list instead of interrupting, until the
-    block ends: a node that must close a recording or save a checkpoint polls the list, and a
-    second Ctrl-C (or the terminal's SIGHUP) cannot cut its closing short. The previous
-    handlers come back on exit."""
-    stop: list[bool] = []
-    handlers = {s: signal.signal(s, lambda *_: stop.append(True)) for s in STOP_SIGNALS}
-    try:
-        yield stop
-    finally:
-        for sig, handler in handlers.items():
-            signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
-
-
-INTERRUPT_SIGNALS = (signal.SIGINT, signal.SIGTERM)
-
-
-class InterruptibleExecutor:
-    """An executor whose :meth:`spin_once` holds back SIGINT or SIGTERM while it runs and then
-    raises KeyboardInterrupt: raised inside a timer or subscription callback, the interrupt
-    would be logged by the executor as a FATAL error of that node on every normal Ctrl-C.
-    Outside ``spin_once`` the signal interrupts at once. Everything else is the wrapped
-    executor's."""
-
-    def __init__(self, executor):
-        self._executor = executor
-        self._depth = 0  # spin_once calls under way (a callback may spin too)
-        self._held: int | None = None  # the signal that arrived during one
-
-    def __getattr__(self, name: str):
-        return getattr(self._executor, name)
-
-    def spin_once(self, timeout_sec: float | None = None) -> None:
-        self._depth += 1
-        try:
-            self._executor.spin_once(timeout_sec=timeout_sec)
-        finally:
-            self._depth -= 1
-        if self._held is not None and not self._depth:
-            signum, self._held = self._held, None
-            raise KeyboardInterrupt(f"signal {signum}")
-
-    def interrupt(self, signum: int, frame: FrameType | None) -> None:
-        """The handler of :data:`INTERRUPT_SIGNALS`."""
-        if self._depth:
-            self._held = signum
-        else:
-            raise KeyboardInterrupt(f"signal {signum}")
-
-
 @contextmanager
 def ros_session(domain_id: int | None = None, interrupt: bool = True) -> Iterator[InterruptibleExecutor]:
     """rclpy initialised for this process, with one EventsExecutor (yielded, as an
@@ -174,7 +120,7 @@ def ros_session(domain_id: int | None = None, interrupt: bool = True) -> Iterato
     spin loop (``spin_once`` with short timeouts, never ``spin()``: the events executor from
     the wheels ignores signals inside ``spin()``), so every node shuts down through the same
     ``finally``; with ``interrupt=False`` the signal handlers are left as they are (inside
-    :func:`stop_requests`). Nodes added to the executor are destroyed on exit.
+    :func:`formic_ros.signals.stop_requests`). Nodes added to the executor are destroyed on exit.
     """
     check_domain_id(domain_id)
     configure_this_process(domain_id)
@@ -184,14 +130,14 @@ def ros_session(domain_id: int | None = None, interrupt: bool = True) -> Iterato
 
     rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
     executor = InterruptibleExecutor(EventsExecutor())
-    previous = {s: signal.signal(s, executor.interrupt) for s in INTERRUPT_SIGNALS} if interrupt else {}
-    try:
-        yield executor
-    finally:
-        nodes = list(executor.get_nodes())
-        executor.shutdown()
-        for node in nodes:
-            node.destroy_node()
-        rclpy.try_shutdown()
-        for sig, handler in previous.items():
-            signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
+    with ExitStack() as signals:
+        if interrupt:
+            signals.enter_context(handling(INTERRUPT_SIGNALS, executor.interrupt))
+        try:
+            yield executor
+        finally:
+            nodes = list(executor.get_nodes())
+            executor.shutdown()
+            for node in nodes:
+                node.destroy_node()
+            rclpy.try_shutdown()

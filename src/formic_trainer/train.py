@@ -4,7 +4,7 @@ The meta-agent worlds step together, one :class:`Actor` acts for all their agent
 ``rollout_steps`` steps the :class:`Learner` updates the network they share from the actor's
 :class:`Rollout`.
 ``formic train-ros`` runs the same actor in a ROS learning host and the same learner in the
-trainer node (:mod:`formic_ros.learning_host`, :mod:`formic_ros.trainer_node`).
+trainer node (:mod:`formic_ros.drivers.learning_host`, :mod:`formic_ros.drivers.trainer`).
 """
 
 from __future__ import annotations

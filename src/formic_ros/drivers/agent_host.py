@@ -1,0 +1,230 @@
+"""Agent host: one process that drives any set of agents over ROS.
+
+Per-agent transport (default): every agent is its own rclpy node ``agent_K`` in the namespace,
+with ``agent_K/observation`` in and ``agent_K/action`` out, all in one events executor (ROS
+composition): what ``ros2 node list`` shows and what a robot's own node replaces. Batched: one
+node holds the ``observations``/``actions`` pair and answers for its agents in one message.
+Either way the host acts once per step for all its agents (a learned policy runs one batch) as
+soon as it has all their observations of that step. Per-agent, an observation lost on a lossy
+link does not stall the others: ``PARTIAL_WAIT_S`` after the step's first observation the host
+acts for those that arrived and answers a late one on its own when it comes (policies draw
+their randomness per agent and step, so the actions are the same either way).
+
+Policies reset from the latched scenario (seed, team size), so a restarted host starts with
+fresh memory and answers from whatever step the world is at. Observations of a step already
+answered (the world re-sends step 0 until everyone is heard) get the same actions again, never
+a second policy call. Learning mode (batched; distributed training): :mod:`formic_ros.drivers.learning_host`.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from contextlib import suppress
+
+import numpy as np
+from formic_interfaces.msg import (ActionBatch, AgentAction, AgentObservation, ObservationBatch,
+                                   ScenarioDescription)
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.type_description_service import START_TYPE_DESCRIPTION_SERVICE_PARAM
+
+from formic_agent.policy import AgentBatch, CentralPolicy
+from formic_runtime.registry import world_overrides
+from formic_runtime.team import Team, format_ids
+from formic_runtime.threads import configure_threads
+import formic_topics as topics
+from formic_world import Scenario
+
+from .. import convert, qos
+from ..parameters import declare_settings
+from .claim import Claim
+from .world_watch import WorldWatch, read_scenario
+
+TRANSPORTS = ("per-agent", "batched")
+PARTIAL_WAIT_S = 0.1  # per-agent: act for the agents heard this long after a step's first observation
+
+
+def lean_node(name: str, namespace: str) -> Node:
+    """An agent node without parameter, type-description or rosout endpoints: with a hundred
+    agents per process those would be most of the DDS endpoints to discover, and agent nodes
+    neither take parameters nor log (their host's node does)."""
+    return Node(
+        name, namespace=namespace, enable_rosout=False, start_parameter_services=False,
+        parameter_overrides=[Parameter(START_TYPE_DESCRIPTION_SERVICE_PARAM, value=False)],
+    )
+
+
+class AgentHost(Node):
+    """One host's control node (its settings, the scenario, the batched transport) with the
+    policies of its agents; per agent a lean node of its own on the per-agent transport. Add
+    :attr:`nodes` (itself first) to an executor and spin."""
+
+    def __init__(self, agent_ids: list[int], spec: str, model: str | None = None, greedy: bool = False,
+                 transport: str = "per-agent", namespace: str = topics.DEFAULT_NAMESPACE,
+                 name: str | None = None, torch_threads: int = 1):
+        if transport not in TRANSPORTS:
+            raise ValueError(f"unknown transport {transport!r}; choose from {', '.join(TRANSPORTS)}")
+        self.ids = np.array(sorted(agent_ids), dtype=np.int64)
+        self.team = Team.for_agents(spec, self.ids.tolist())
+        self.world_needs = world_overrides(self.team.names)  # csaf-ref: one-slot queues
+        configure_threads(torch_threads)
+        for policy, _ in self.team.build(model=model, greedy=greedy).members:
+            if isinstance(policy, CentralPolicy):
+                raise ValueError(f"{policy.name} needs the full world: it runs as its own node")
+        self.transport = transport
+        super().__init__(name or f"agent_host_{os.getpid()}", namespace=namespace)
+        declare_settings(self, {"agent_ids": self.ids.tolist(), "policy": spec, "model": model,
+                                        "greedy": greedy, "transport": transport, "torch_threads": torch_threads})
+        self.log = self.get_logger()
+        self.nodes = [self]
+        self.create_subscription(ScenarioDescription, topics.SCENARIO, self._on_scenario, qos.LATCHED)
+        if transport == "batched":
+            self.create_subscription(ObservationBatch, topics.OBSERVATIONS, self._on_batch, qos.STREAM)
+            self.actions_pub = self.create_publisher(ActionBatch, f"~/{topics.ACTIONS}", qos.STREAM_WRITER)
+            batched, publishers = self.actions_pub.topic_name, [self.actions_pub]
+        else:
+            self.action_pubs = {}
+            for a in self.ids.tolist():
+                node = lean_node(topics.agent_node_name(a), namespace)
+                node.create_subscription(AgentObservation, f"~/{topics.AGENT_OBSERVATION}",
+                                         lambda msg, a=a: self._on_agent_observation(a, msg), qos.LATEST)
+                self.action_pubs[a] = node.create_publisher(AgentAction, f"~/{topics.AGENT_ACTION}", qos.STREAM_WRITER)
+                self.nodes.append(node)
+            self.create_timer(PARTIAL_WAIT_S / 4, self._answer_late_step)
+            batched, publishers = None, list(self.action_pubs.values())
+        self.claim = Claim(self, self.ids.tolist(), batched, publishers=publishers)  # the world checks it
+        self.scenario: Scenario | None = None
+        self.scenario_json = ""
+        self.horizon = -1  # its episode's steps (-1: no scenario yet)
+        self.expected = 0  # this host's agents that are in the team
+        self.episodes = 0
+        self.finished = False  # the current episode has ended (a done observation arrived)
+        self._reset_steps()
+        self.log.info(f"up: agents {format_ids(self.ids.tolist())} ({transport}), waiting for a world in {namespace}")
+
+    # ---------------------------------------------------------------------- episode
+    def _reset_steps(self) -> None:
+        self.collecting = -1  # step whose per-agent observations are being gathered
+        self.gathered: dict[int, AgentObservation] = {}
+        self.gathering_since = 0.0  # when the first of them arrived
+        self.answered_step = -1
+        self.answer_ids = np.zeros(0, dtype=np.int64)
+        self.answer = np.zeros(0, dtype=np.int64)
+        self.wiped_at = -1
+
+    def _start_episode(self) -> None:
+        self.team.reset(self.scenario.config.n_agents, self.scenario.seed)
+        self._reset_steps()
+        self.finished = False
+        self.episodes += 1
+
+    def _on_scenario(self, msg: ScenarioDescription) -> None:
+        if msg.scenario_json == self.scenario_json or (scenario := read_scenario(msg, self.log)) is None:
+            return
+        self.scenario_json, self.scenario, config = msg.scenario_json, scenario, scenario.config
+        self.horizon = config.episode_steps
+        outside = self.ids[self.ids >= config.n_agents]
+        if len(outside):
+            self.log.error(f"agents {outside.tolist()} are not in this team of {config.n_agents}: "
+                           "they get no observations")
+        self.expected = int((self.ids < config.n_agents).sum())
+        wrong = {k: v for k, v in self.world_needs.items() if getattr(config, k) != v}
+        if wrong:
+            self.log.error(f"this host's policies need a world with {wrong}, but the world serves "
+                           f"{ {k: getattr(config, k) for k in wrong} }: `formic run` sets them")
+        self._start_episode()
+        self.log.info(f"scenario seed {scenario.seed}: driving agents {format_ids(self.ids.tolist())} "
+                      f"({self.transport})")
+
+    def _ready(self, step: int, done: bool) -> bool:
+        """Whether an observation of ``step`` should be answered (handles episode ends and a
+        world that starts the same scenario again)."""
+        if not self.scenario_json or not self.claim.ready():
+            return False  # the scenario, the world's confirmation or the recorders missing: the world re-sends
+        if done:
+            self.finished = True
+            return False
+        if self.finished and step == 0:
+            self._start_episode()
+        return not self.finished
+
+    # ------------------------------------------------------------------- observations
+    def _on_agent_observation(self, agent: int, msg: AgentObservation) -> None:
+        if msg.agent_id != agent or not self._ready(msg.step, msg.done):
+            return
+        if msg.step == self.answered_step:
+            if agent in self.answer_ids:  # a re-send
+                action = int(self.answer[self.answer_ids == agent][0])
+                self.action_pubs[agent].publish(AgentAction(step=msg.step, agent_id=agent, action=action))
+            else:  # late: the others were answered without it
+                self._answer(convert.decode_agent_observations([msg]))
+            return
+        if msg.step < max(self.collecting, self.answered_step):
+            return
+        if msg.step > self.collecting:
+            self.collecting, self.gathered, self.gathering_since = msg.step, {}, time.monotonic()
+        self.gathered[agent] = msg
+        if len(self.gathered) == self.expected:
+            self._answer_gathered()
+
+    def _answer_gathered(self) -> None:
+        self._answer(convert.decode_agent_observations([self.gathered[a] for a in sorted(self.gathered)]))
+
+    def _answer_late_step(self) -> None:
+        """Timer: act for the agents heard when the rest of the step is late (a lost message)."""
+        if self.gathered and time.monotonic() - self.gathering_since >= PARTIAL_WAIT_S:
+            self.log.warning(f"step {self.collecting}: acting for {len(self.gathered)} of {self.expected} agents; "
+                             "the others' observations are late", throttle_duration_sec=5.0)
+            self._answer_gathered()
+
+    def _on_batch(self, msg: ObservationBatch) -> None:
+        if not self._ready(msg.step, msg.done) or msg.step < self.answered_step:
+            return
+        rows = convert.rows_of(msg, self.ids)
+        rows = rows[rows >= 0]
+        if not len(rows):
+            return  # none of ours (a re-send for other hosts' agents)
+        if msg.step == self.answered_step:
+            self.actions_pub.publish(convert.encode_actions(msg.step, self.answer_ids, self.answer))
+        elif len(rows) == len(msg.agent_ids) and (rows == np.arange(len(rows))).all():
+            self._answer(convert.decode_observation_batch(msg))  # every row, in order: no copy
+        else:
+            self._answer(convert.decode_observation_batch(msg, rows))
+
+    # ------------------------------------------------------------------------ actions
+    def _answer(self, batch: AgentBatch) -> None:
+        step = batch.step
+        if step in self.scenario.wipeout_starts and self.wiped_at != step:
+            self.team.wipe()
+            self.wiped_at = step
+        actions = self.team.act(batch)
+        if step == self.answered_step:  # a late agent of a step answered in part
+            self.answer_ids = np.concatenate([self.answer_ids, batch.agent_ids])
+            self.answer = np.concatenate([self.answer, actions])
+        else:
+            self.answered_step, self.answer_ids, self.answer = step, batch.agent_ids, actions
+        self.collecting, self.gathered = -1, {}
+        if self.transport == "batched":
+            self.actions_pub.publish(convert.encode_actions(step, batch.agent_ids, actions))
+        else:
+            for a, action in zip(batch.agent_ids.tolist(), actions.tolist()):
+                self.action_pubs[a].publish(AgentAction(step=step, agent_id=a, action=action))
+
+
+def serve_agents(agent_ids: list[int], spec: str, once: bool = False, domain_id: int | None = None, **settings) -> int:
+    """Host these agents (``settings``: :class:`AgentHost`'s) until interrupted (or, with
+    ``once``, until an episode ends); returns the number of episodes played."""
+    from ..env import ros_session
+
+    with ros_session(domain_id) as executor:
+        host = AgentHost(agent_ids, spec, **settings)
+        for node in host.nodes:
+            executor.add_node(node)
+        watch = WorldWatch(host)
+        with suppress(KeyboardInterrupt):
+            while not (once and host.finished):
+                executor.spin_once(timeout_sec=0.2)
+                if once and not host.finished and watch.ended(host.answered_step + 1, host.horizon):
+                    break  # only the final (done) observation was lost
+        return host.episodes

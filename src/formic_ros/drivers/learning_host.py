@@ -1,0 +1,243 @@
+"""Distributed training's agent host: learning agents over ROS.
+
+:class:`LearningHost` is the batched-transport node around a
+:class:`formic_ros.drivers.host_actor.HostActor` (``formic train``'s actor over this host's
+agents, on the weights the trainer node broadcasts); its rollouts go to the trainer as Rollout
+messages. :func:`serve_learning_agents` runs one.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from contextlib import suppress
+
+import numpy as np
+import torch
+from rclpy.duration import Duration
+from rclpy.node import Node
+from formic_interfaces.msg import ActionBatch, ObservationBatch, ScenarioDescription, Weights
+from formic_interfaces.msg import Rollout as RolloutMsg
+
+from formic_agent.policy import AgentBatch
+import formic_topics as topics
+from formic_trainer.config import TrainConfig
+from formic_trainer.worlds import Frame
+from formic_world.geometry import N_ACTIONS
+
+from .. import convert, qos
+from ..graph import publishers_of
+from ..parameters import declare_settings
+from ..wire import read
+from .claim import Claim
+from .host_actor import HostActor
+from .world_watch import WorldWatch, read_scenario
+
+
+SWITCH_MODES = ("chunk", "episode")
+WEIGHTS_WAIT_LOG_S = 10.0  # while a host waits for weights, it says so this often
+
+
+class LearningHost(Node):
+    """A batched-transport host whose agents learn (distributed training).
+
+    The agents act as the in-process trainer's do (:class:`HostActor`: its actor, LSTM
+    states and sampler under the training filter, which needs the world's ``train_masks``:
+    run the world with ``--training-masks``); each chunk of ``rollout_steps`` steps of the
+    learning agents goes to the trainer as a Rollout. Weights come from the trainer's latched
+    ``weights`` topic. ``switch="chunk"``: after each rollout the host waits for the weights
+    that rollout produced and acts on with them, exactly as the in-process trainer updates
+    after each chunk (on-policy; same seeds and settings give the same learning curve).
+    ``switch="episode"``: an episode is played with one weights version while the trainer
+    learns from its first chunks; at the next episode's start the host waits for the updates
+    of all its rollouts and takes the newest weights (each rollout carries what the weights that
+    acted computed, so the trainer's PPO ratio is taken against them; with one host the lag
+    stays below the chunks per episode).
+
+    An episode starts at step 0 of a scenario the host has not played yet: observations of a
+    new episode that arrive before its (latched) scenario are held until it does.
+    """
+
+    def __init__(self, agent_ids: list[int], cfg: TrainConfig, switch: str = "chunk", first_episode: int = 0,
+                 namespace: str = topics.DEFAULT_NAMESPACE, name: str | None = None, torch_threads: int = 1):
+        if switch not in SWITCH_MODES:
+            raise ValueError(f"unknown weights switch {switch!r}; choose from {', '.join(SWITCH_MODES)}")
+        torch.set_num_threads(torch_threads)
+        self.switch = switch
+        super().__init__(name or f"agent_host_{os.getpid()}", namespace=namespace)
+        declare_settings(self, {"agent_ids": [int(a) for a in agent_ids], "switch": switch,
+                                        "first_episode": first_episode, "torch_threads": torch_threads,
+                                        "train_config": cfg})
+        self.log = self.get_logger()
+        self.actor = HostActor(cfg, agent_ids, first_episode=first_episode)
+        self.ids = self.actor.ids
+        self.create_subscription(ScenarioDescription, topics.SCENARIO, self._on_scenario, qos.LATCHED)
+        self.create_subscription(ObservationBatch, topics.OBSERVATIONS, self._on_batch, qos.STREAM)
+        self.weights_sub = self.create_subscription(Weights, topics.WEIGHTS, self._on_weights, qos.LATCHED)
+        self.actions_pub = self.create_publisher(ActionBatch, f"~/{topics.ACTIONS}", qos.STREAM_WRITER)
+        self.claim = Claim(self, list(self.ids), self.actions_pub.topic_name, publishers=[self.actions_pub])
+        self.rollouts_pub = self.create_publisher(RolloutMsg, topics.ROLLOUTS, qos.ROLLOUT)
+        self.played = ""  # scenario of the episode being (or last) played
+        self.next_scenario = ""  # a scenario not played yet
+        self.scenario_json = ""  # the newest scenario seen
+        self.horizon = -1  # its episode's steps (-1: none yet)
+        self.playing = False
+        self.episodes = 0  # episodes finished
+        self.episode_rollouts = 0  # rollouts sent in the current episode
+        self.rollouts_sent = 0
+        self.held: ObservationBatch | None = None  # newest observations not dealt with yet
+        self.ready: tuple[AgentBatch, Frame] | None = None  # to act on once the weights allow
+        self.newest = None  # the newest Weights message received
+        self.wait_version: int | None = -1  # act only with weights newer than this (None: act now)
+        self.answered_step, self.answer = -1, np.zeros(0, dtype=np.int64)
+        self._start_waiting()  # for the first weights
+
+    # ------------------------------------------------------------------------ inputs
+    def _on_scenario(self, msg: ScenarioDescription) -> None:
+        if msg.scenario_json in (self.scenario_json, self.played) or (scenario := read_scenario(msg, self.log)) is None:
+            return
+        self.scenario_json = self.next_scenario = msg.scenario_json
+        self.horizon = scenario.config.episode_steps
+        if (self.ids >= scenario.config.n_agents).any():
+            self.log.error(f"agents {self.ids.tolist()} are not all in this team of {scenario.config.n_agents}")
+        self.pump()
+
+    def _on_weights(self, msg) -> None:
+        if self.newest is None or msg.version > self.newest.version:
+            self.newest = msg
+            self.pump()
+
+    def _on_batch(self, msg: ObservationBatch) -> None:
+        if not self.claim.ready():
+            return  # the world re-sends step 0 until every agent is heard
+        self.held = msg
+        self.pump()
+
+    # ---------------------------------------------------------------------- stepping
+    def _take(self, msg: ObservationBatch) -> bool:
+        """Deal with a received observation batch; False to keep holding it (a new episode's
+        step 0 before its scenario)."""
+        rows = convert.rows_of(msg, self.ids)  # this host's agents, in id order
+        if not (rows >= 0).all():
+            return True  # a re-send for other hosts' agents
+        step = int(msg.step)
+        if self.ready is not None and step == self.ready[0].step and not msg.done:
+            return True  # a re-send of what waits for weights
+        if self.playing and step == 0 and self.next_scenario and not msg.done:
+            self.log.warning("a new episode started before this one ended: its last chunk is dropped")
+            self.playing = False
+        if self.playing and step == self.answered_step and not msg.done:
+            self.actions_pub.publish(convert.encode_actions(step, self.ids, self.answer))  # a re-send
+            return True
+        if not self.playing:
+            if msg.done or step != 0:
+                return True  # the end or the middle of an episode this host did not play
+            if not self.next_scenario:
+                return False
+        elif step != self.answered_step + 1:
+            return True  # stale
+        if not len(msg.train_masks):
+            self.log.error("the observations carry no training masks: run the world with --training-masks",
+                           once=True)
+            return True
+        batch = convert.decode_observation_batch(msg, rows)
+        starting = not self.playing
+        if starting:  # before its first frame: the agents' action feedback starts afresh
+            self._start_episode(batch)
+        train_mask = read(msg.train_masks, np.uint8).reshape(-1, N_ACTIONS)[rows].astype(bool)
+        frame = self.actor.frame(batch, train_mask, read(msg.rewards, np.float32), rows)
+        if not starting:
+            rollout = self.actor.outcome(frame, batch.loads, bool(msg.done))
+            if rollout is not None:
+                self.rollouts_pub.publish(convert.encode_rollout(rollout))
+                self.episode_rollouts += 1
+                self.rollouts_sent += 1
+                if self.switch == "chunk":  # act on with the weights this rollout makes
+                    self.wait_version = self.actor.version
+                    self._start_waiting()
+                elif msg.done:  # start the next episode with the weights all of this one's make
+                    self.wait_version = self.actor.version + self.episode_rollouts - 1
+                    self._start_waiting()
+            if msg.done:
+                self.playing = False
+                self.episodes += 1
+                return True
+        self.ready = (batch, frame)
+        return True
+
+    def _start_episode(self, batch: AgentBatch) -> None:
+        self.played, self.next_scenario = self.next_scenario, ""
+        self.playing, self.answered_step, self.episode_rollouts = True, -1, 0
+        self.actor.start_episode(batch.loads)
+
+    def _start_waiting(self) -> None:
+        """A wait for weights starts: reported after WEIGHTS_WAIT_LOG_S, and then as often."""
+        self.waiting_since = time.monotonic()
+        self.next_wait_report = self.waiting_since + WEIGHTS_WAIT_LOG_S
+
+    def _weights_ready(self) -> bool:
+        if self.wait_version is None:
+            return True
+        if self.newest is None or self.newest.version <= self.wait_version:
+            if time.monotonic() > self.next_wait_report:
+                self.log.warning(self.weights_wait_report())
+                self.next_wait_report = time.monotonic() + WEIGHTS_WAIT_LOG_S
+            return False
+        self.actor.load_weights(self.newest)
+        self.wait_version = None
+        return True
+
+    def weights_wait_report(self) -> str:
+        """Who this host waits for and what it knows: the graph's publishers of ``weights`` (the
+        trainer) and whether they acknowledged this host's last rollout (lost on the way, or
+        received and the update or its weights are late)."""
+        waited = (f"waited {time.monotonic() - self.waiting_since:.0f} s for weights newer than version "
+                  f"{self.wait_version}")
+        trainers = publishers_of(self, self.weights_sub.topic_name)
+        if not trainers:
+            return (f"{waited}: no trainer publishes on {self.weights_sub.topic_name} (is `formic trainer` running, on "
+                    "this domain and namespace, and reachable: FORMIC_DDS_NETWORK, ROS_STATIC_PEERS?)")
+        waited += f" from {', '.join(trainers)}"
+        if not self.rollouts_sent:
+            return f"{waited}: none has arrived (the link?)"
+        if not self.rollouts_pub.get_subscription_count():
+            return f"{waited}: no trainer reader has matched this host's rollouts yet"
+        if not self.rollouts_pub.wait_for_all_acked(Duration(seconds=0)):
+            return f"{waited}: it has not acknowledged this host's last rollout (still crossing, or lost: the link?)"
+        return f"{waited}: it acknowledged this host's last rollout; its update or the new weights are late"
+
+    def pump(self) -> None:
+        """Deal with what has arrived: the held observations, then acting when the weights allow."""
+        if self.held is not None and self._take(self.held):
+            self.held = None
+        if self.ready is None or not self._weights_ready():
+            return
+        batch, frame = self.ready
+        self.ready = None
+        self.answer = self.actor.act(batch, frame)
+        self.answered_step = batch.step
+        self.actions_pub.publish(convert.encode_actions(batch.step, self.ids, self.answer))
+
+
+def serve_learning_agents(agent_ids: list[int], cfg: TrainConfig, switch: str = "chunk",
+                          first_episode: int = 0, namespace: str = topics.DEFAULT_NAMESPACE,
+                          name: str | None = None, episodes: int | None = None, domain_id: int | None = None,
+                          torch_threads: int = 1) -> int:
+    """Host learning agents until interrupted (or until ``episodes`` episodes are played and
+    their rollouts delivered, or the world is gone); returns the episodes played."""
+    from ..env import ros_session
+
+    with ros_session(domain_id) as executor:
+        host = LearningHost(agent_ids, cfg, switch=switch, first_episode=first_episode, namespace=namespace,
+                            name=name, torch_threads=torch_threads)
+        executor.add_node(host)
+        watch = WorldWatch(host)
+        with suppress(KeyboardInterrupt):
+            while not (episodes is not None and host.episodes >= episodes):
+                executor.spin_once(timeout_sec=0.2)
+                host.pump()  # also says so when the weights are late
+                next_step = host.answered_step + 1 if host.playing else host.horizon
+                if episodes is not None and watch.ended(next_step, host.horizon):
+                    break  # between episodes, or only the final observation was lost
+            host.rollouts_pub.wait_for_all_acked(Duration(seconds=5.0))
+        return host.episodes

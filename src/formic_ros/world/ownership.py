@@ -1,0 +1,300 @@
+"""Who may drive an agent: each agent is bound to one owner (the rules for users: docs/ros.md,
+"Who may drive an agent"; the messages: docs/interfaces.md, "Claims and owners").
+
+A driver node that drives several agents (agent host, planner, learning host) publishes a latched
+claim on ``claims`` (JSON ``{"owner": fully qualified node name, "token": unique per claim,
+"agents": [...], "actions": its own batch topic or null}``) and answers only once
+:meth:`Claim.ready` (:mod:`formic_ros.drivers.claim`). A node that is ``agent_K`` and publishes on
+``agent_K/action`` needs no claim: it owns agent K when K is left to other nodes (``--external``;
+any unclaimed agent in a world started on its own), as soon as it is that topic's only publisher. The world
+(:class:`Ownership`) binds each unowned agent to the first claim, confirms on ``owners``
+(latched JSON ``{"owners": {agent: token}, "recorders": how many the drivers wait for,
+"refused": {token: why}}``), refuses a second claim for an owned agent unless the first owner
+has left the graph, refuses claims for a run's own agents from nodes the run did not start, and
+checks every action against its agent's owner. rclpy tells no publisher apart on one topic, so
+while a second node publishes on an owned agent's topic that agent's actions are not applied
+(it waits, it is not hijacked). This guards against mistakes and stray nodes, not against a node
+that deliberately publishes on an owner's topic.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections import Counter
+
+import numpy as np
+from formic_interfaces.msg import ActionBatch
+from std_msgs.msg import String
+
+from formic_runtime.team import format_ids
+import formic_topics as topics
+
+from .. import qos
+from ..graph import RecorderReports, qualified_name, recorders_hear
+
+GRAPH_REFRESH_S = 2.0  # a per-agent topic's publishers are re-read at most this often
+RECHECK_S = 0.5  # refused claims are re-examined this often (has the first owner left?)
+TAKEOVER_GRACE_S = 2.0  # a claim this young is never taken over: its node may not be in the graph yet
+RECORDER_PENDING = {"owner": "", "token": "", "agents": [], "actions": None}  # an adoption waiting for recorders
+
+
+class Ownership:
+    """The world's side: claims in, owners out, and :meth:`allowed` / :meth:`allowed_batch`
+    (the inbox's gate). ``agent_readers``: the world's reader of each per-agent action topic
+    (full name -> rclpy subscription: its matched-publisher count is a local call, cheap enough
+    for every action). ``external``: the agents nodes other than the run's drivers may drive
+    (None: any, as in a world started on its own); ``drivers``: the fully qualified names of the
+    driver nodes the run started, the only ones whose claims for the other agents count (None:
+    anyone's)."""
+
+    def __init__(self, node, offer_batch, subscribe, agent_readers: dict | None = None,
+                 external: tuple[int, ...] | None = None, drivers: tuple[str, ...] | None = None,
+                 recorder_reports: RecorderReports | None = None):
+        self.node, self.offer_batch = node, offer_batch  # offer_batch(msg, topic): into the inbox
+        self.recorder_reports = recorder_reports  # what the recorders hear (None: nothing waits for them)
+        self.subscribe = subscribe  # subscribe(type, topic, qos, callback): malformed samples counted
+        self.agent_readers = agent_readers or {}
+        self.external = None if external is None else frozenset(int(a) for a in external)
+        self.drivers = None if drivers is None else tuple(drivers)
+        self.claims: dict[str, dict] = {}  # token -> claim
+        self.owner_of: dict[int, str] = {}  # agent -> token
+        self.refused: dict[str, dict] = {}  # token -> refused claim (re-examined)
+        self.outsiders: dict[str, dict] = {}  # token -> claim refused for good, with its "why" (told on owners)
+        self.batch_topics: set[str] = set()  # the owners' own batch topics (subscribed)
+        self.rejected = Counter()  # the episode's rejection counter (the inbox's, from :meth:`count_into`)
+        self.recorders = 0  # recorders the world waits for: drivers wait for them too
+        self.told: set[tuple[str, str]] = set()  # (reason, source): logged once
+        self.graph: dict[str, tuple[float, list[str]]] = {}  # topic -> (read at, publisher node names)
+        self.trusted: dict[tuple[str, int], float] = {}  # (topic, agent) -> allowed until (monotonic s)
+        self.batch_agents: dict[str, np.ndarray] = {}  # an owner's batch topic -> the agents it drives
+        self.namespace = node.get_namespace().rstrip("/")
+        subscribe(String, topics.CLAIMS, qos.reliable(1000, latched=True), self._on_claim)
+        self.owners_pub = node.create_publisher(String, topics.OWNERS, qos.LATCHED)
+        node.create_timer(RECHECK_S, self._recheck)
+
+    def count_into(self, rejected: Counter) -> None:
+        """Count this episode's refused actions in ``rejected`` (the inbox's counter)."""
+        self.rejected = rejected
+
+    # ------------------------------------------------------------------ claims
+    def _on_claim(self, msg: String) -> None:
+        try:
+            c = json.loads(msg.data)
+            claim = {"owner": str(c["owner"]), "token": str(c["token"]), "agents": [int(a) for a in c["agents"]],
+                     "actions": c.get("actions") and str(c["actions"])}
+        except (ValueError, KeyError, TypeError):
+            self._count("malformed", 1, f"{topics.CLAIMS}: {msg.data[:80]!r}", "malformed claim")
+            return
+        if claim["token"] in self.claims or claim["token"] in self.outsiders:
+            return
+        if why := self._outsider(claim):
+            self.node.get_logger().error(f"claim refused: {why}")
+            self.outsiders[claim["token"]] = {**claim, "why": why}
+            self._publish_owners()
+            return
+        claim["received_at"] = time.monotonic()
+        self.claims[claim["token"]] = claim
+        if claim["actions"] and claim["actions"] not in self.batch_topics:
+            topic = claim["actions"]
+            self.batch_topics.add(topic)
+            self.subscribe(ActionBatch, topic, qos.STREAM, lambda m, t=topic: self.offer_batch(m, t))
+        self._bind(claim)
+
+    def unheard_claimants(self) -> set[str]:
+        """The nodes in the graph with a claims publisher whose claim has not arrived yet (a
+        latched claim reaches a reader some time after its node is discovered)."""
+        heard = {c["owner"] for c in (*self.claims.values(), *self.outsiders.values())}
+        present = {f"{info.node_namespace.rstrip('/')}/{info.node_name}"
+                   for info in self.node.get_publishers_info_by_topic(topics.full_name(self.namespace or "/",
+                                                                                        topics.CLAIMS))}
+        return present - heard
+
+    def _outsider(self, claim: dict) -> str | None:
+        """Why a claim may not count (None: it may): a node the run did not start claims agents
+        the run's own drivers are to drive (say, a stray node that claims before the hosts start)."""
+        if self.drivers is None or claim["owner"] in self.drivers:
+            return None
+        theirs = [a for a in claim["agents"] if a not in (self.external or ())]
+        if not theirs:
+            return None
+        drivers = ", ".join(self.drivers) or "none"
+        external = format_ids(sorted(self.external)) if self.external else "none"
+        return (f"{claim['owner']} claims agents {format_ids(theirs)}, which this run's own drivers ({drivers}) "
+                f"drive (--external: {external})")
+
+    def _alive(self, owner: str) -> int:
+        return sum(f"{ns.rstrip('/')}/{name}" == owner for name, ns in self.node.get_node_names_and_namespaces())
+
+    def _bind(self, claim: dict) -> None:
+        self.trusted.clear()  # owners may change here: every source is checked again
+        self.batch_agents.clear()
+        taken = []
+        now = time.monotonic()
+        for a in claim["agents"]:
+            first = self.claims.get(self.owner_of.get(a, ""))
+            if first is None or first["token"] == claim["token"]:
+                self.owner_of[a] = claim["token"]
+                continue
+            same_name = first["owner"] == claim["owner"]
+            # A young claim's node may not be in the graph yet. Under one name the graph cannot tell
+            # a restart from a second node it has not discovered, so the newcomer waits too.
+            young = now - first["received_at"] < TAKEOVER_GRACE_S or (
+                same_name and now - claim["received_at"] < TAKEOVER_GRACE_S)
+            if self._alive(first["owner"]) > same_name or young:
+                taken.append(a)
+            else:  # the first owner has left the graph: a restarted host takes over
+                self.node.get_logger().info(f"agent {a}: {first['owner']} has left, {claim['owner']} drives it now")
+                self.owner_of[a] = claim["token"]
+        if taken:
+            if claim["token"] not in self.refused:
+                drivers = sorted({self.claims[self.owner_of[a]]["owner"] for a in taken})
+                self.node.get_logger().error(
+                    f"{claim['owner']} claims agents {taken}, already driven by {drivers}: "
+                    "claim refused, first owner kept")
+            self.refused[claim["token"]] = claim
+        else:
+            self.refused.pop(claim["token"], None)
+        self._publish_owners()
+
+    def _adopt(self, agent: int, via: str) -> dict | None:
+        """The claim a node that is ``agent_K`` needs none of: it owns agent K, when K is left to
+        other nodes, as soon as it is the only publisher on ``agent_K/action`` (None: it is not)
+        and the recorders the world waits for hear it (``RECORDER_PENDING`` until then)."""
+        node = f"{self.namespace}/{topics.agent_node_name(agent)}"
+        if (self.external is not None and agent not in self.external) or via != self._action_topic(agent):
+            return None
+        if self._publishers(via, fresh=True) != [node]:
+            return None
+        if self.recorders and not recorders_hear(self.node, via, self.recorders, self.recorder_reports.live()):
+            if ("unrecorded", via) not in self.told:
+                self.told.add(("unrecorded", via))
+                self.node.get_logger().info(f"agent {agent}: waiting for the recorder to hear {node} before taking "
+                                            "its actions, so that the recording holds them all")
+            return RECORDER_PENDING
+        claim = {"owner": node, "token": f"{node}#node", "agents": [agent], "actions": None,
+                 "received_at": time.monotonic()}
+        self.claims[claim["token"]] = claim
+        self.node.get_logger().info(f"agent {agent}: driven by its node {node} (no claim needed)")
+        self._bind(claim)
+        return claim
+
+    def expect_recorders(self, count: int) -> None:
+        """Tell the drivers how many recorders must match their action topics before they answer."""
+        if count != self.recorders:
+            self.recorders = count
+            self._publish_owners()
+
+    def _publish_owners(self) -> None:
+        owners = {str(a): t for a, t in self.owner_of.items()}
+        self.owners_pub.publish(String(data=json.dumps({"owners": owners, "recorders": self.recorders,
+                                                        "refused": {t: c["why"] for t, c in self.outsiders.items()}})))
+
+    def _recheck(self) -> None:
+        for claim in list(self.refused.values()):
+            if self._alive(claim["owner"]):
+                self._bind(claim)
+
+    def why_nobody_answered(self) -> str | None:
+        """What the world knows about drivers it turned away or that claimed agents and stayed
+        silent (for the "nobody joined" error), or None when no driver claimed anything (then
+        discovery is the likely cause)."""
+        reasons = [f"refused a claim: {claim['why']}" for claim in self.outsiders.values()]
+        reasons += [f"refused {claim['owner']}'s claim: its agents were already driven"
+                    for claim in self.refused.values()]
+        silent = {claim["owner"] for claim in self.claims.values()} - {c["owner"] for c in self.refused.values()}
+        reasons += [f"{owner} claimed agents but did not answer"
+                    + ("" if self._alive(owner) else " (it has left the graph)") for owner in sorted(silent)]
+        rejected = {reason: n for reason, n in self.rejected.items() if n}
+        if rejected:
+            reasons.append("rejected actions: " + ", ".join(f"{n} {reason}" for reason, n in sorted(rejected.items())))
+        return "; ".join(reasons) or None
+
+    # ------------------------------------------------------------------ actions
+    def _count(self, reason: str, count: int, source: str, what: str = "rejected action") -> None:
+        if count:
+            self.rejected[reason] += count
+        key = (reason, source.split(" (")[0])
+        if key not in self.told:
+            self.told.add(key)
+            self.node.get_logger().warning(f"{what} ({reason}): {source} (logged once, counted in the summary)")
+
+    def _action_topic(self, agent: int) -> str:
+        return topics.full_name(self.namespace or "/", topics.agent_topic(agent, topics.AGENT_ACTION))
+
+    def _publishers(self, topic: str, fresh: bool = False) -> list[str]:
+        """The nodes publishing on ``topic`` (sorted, one entry per publisher), from the graph
+        read at most ``GRAPH_REFRESH_S`` ago unless ``fresh``."""
+        read_at, names = self.graph.get(topic, (-np.inf, []))
+        if fresh or time.monotonic() - read_at > GRAPH_REFRESH_S:
+            infos = self.node.get_publishers_info_by_topic(topic)
+            names = sorted(qualified_name(i.node_namespace, i.node_name) for i in infos)
+            self.graph[topic] = (time.monotonic(), names)
+        return names
+
+    def _drives(self, claim: dict, agent: int, via: str) -> bool:
+        if claim["actions"]:
+            return via == claim["actions"]
+        if via != self._action_topic(agent):
+            return False
+        node = f"{self.namespace}/{topics.agent_node_name(agent)}"
+        return node in self._publishers(via) or node in self._publishers(via, fresh=True)  # perhaps just discovered
+
+    def _shared(self, via: str, agent: int) -> bool:
+        """Whether another node publishes on agent ``agent``'s own action topic beside its
+        owner: rclpy cannot tell their messages apart, so none is applied while it does (the
+        agent waits; counted as ``foreign publisher``, an ERROR once per topic). The nodes whose
+        claims for the agent the world refused were told so and stand down: they are allowed."""
+        reader = self.agent_readers.get(via)
+        if reader is None or reader.get_publisher_count() <= 1:  # the common case, checked on every action
+            return False
+        refused = (*self.refused.values(), *self.outsiders.values())
+        told = sum(agent in c["agents"] and not c["actions"] for c in refused)
+        if reader.get_publisher_count() <= 1 + told:
+            return False
+        self.rejected["foreign publisher"] += 1
+        if ("foreign publisher", via) not in self.told:
+            self.told.add(("foreign publisher", via))
+            owner = self.claims[self.owner_of[agent]]["owner"]
+            names = self._publishers(via, fresh=True)
+            self.node.get_logger().error(
+                f"agent {agent} is driven by {owner}, but {reader.get_publisher_count()} publishers are on {via} "
+                f"(nodes {', '.join(names)}): its actions are not applied while another node publishes there (the "
+                f"first owner keeps the agent, which waits; stop the other node). Logged once, counted in the summary")
+        return True
+
+    def allowed(self, via: str, agent: int) -> bool:
+        """Whether agent ``agent``'s action that arrived on topic ``via`` was sent by its owner.
+        A yes holds for ``GRAPH_REFRESH_S`` (or until the owners change): per-agent actions come
+        one message each, and checking each anew cost the world ~5 ms a step at 128 agents. A
+        second publisher on the owner's topic is checked on every action."""
+        now = time.monotonic()
+        if self.trusted.get((via, agent), -np.inf) > now:
+            return not self._shared(via, agent)
+        claim = self.claims.get(self.owner_of.get(agent, ""))
+        if claim is None:
+            claim = self._adopt(agent, via)
+            if claim is RECORDER_PENDING:
+                return False  # dropped, not rejected: the world re-sends the observation
+        if claim is not None and self._drives(claim, agent, via):
+            if self._shared(via, agent):
+                return False
+            self.trusted[(via, agent)] = now + GRAPH_REFRESH_S
+            return True
+        closed = claim is None and self.external is not None and agent not in self.external
+        detail = (f"agent {agent} is not --external: only the run's own drivers drive it, and none has claimed it"
+                  if closed else f"agent {agent} and maybe more")
+        self._count("unclaimed" if claim is None else "not owner", 1, f"{via} ({detail})")
+        return False
+
+    def allowed_batch(self, via: str, ids: np.ndarray) -> np.ndarray:
+        """:meth:`allowed` for a batch's agents at once (the agents the owner of topic ``via``
+        drives are kept until the owners change; the rest are checked, and counted, one by one)."""
+        owned = self.batch_agents.get(via)
+        if owned is None:
+            owned = self.batch_agents[via] = np.array(
+                sorted(a for a, t in self.owner_of.items() if self.claims[t]["actions"] == via), dtype=np.int64)
+        ok = np.isin(ids, owned)
+        if not ok.all():
+            ok[~ok] = [self.allowed(via, a) for a in ids[~ok].tolist()]
+        return ok
