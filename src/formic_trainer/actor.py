@@ -34,6 +34,17 @@ def actor_streams(cfg: TrainConfig, episode: int, first_agent: int = 0) -> tuple
     return generator, np.random.default_rng([key[0], 4, *key[1:]])
 
 
+def step_food(loads_before: np.ndarray, loads_after: np.ndarray, load_full: int) -> float:
+    """The food one step deposited at the nest, by :class:`formic_world.World`'s definition
+    (``StepResult.food``: the load ticks unloaded there over ``load_full``), read from every
+    agent's load (a fraction of ``load_full``) before and after the step, as observations carry
+    them: loads fall only by unloading at the nest, and rounding them to whole ticks undoes the
+    messages' float32, so this is the world's value to the bit."""
+    before = np.rint(np.asarray(loads_before, dtype=np.float64) * load_full).astype(np.int64)
+    after = np.rint(np.asarray(loads_after, dtype=np.float64) * load_full).astype(np.int64)
+    return int(np.clip(before - after, 0, None).sum()) / load_full
+
+
 def learning_rows(cfg: TrainConfig, ids: np.ndarray) -> np.ndarray:
     """Rows of ``ids`` (team-wide agent ids over the meta-agent worlds) whose agents learn:
     the first ``learning_agents`` of each world (all when it is negative)."""

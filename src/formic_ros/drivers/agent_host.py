@@ -39,6 +39,7 @@ from formic_world import Scenario
 from .. import convert, qos
 from ..parameters import declare_settings
 from .claim import Claim
+from .protocol import DriverProtocol, Turn
 from .world_watch import WorldWatch, read_scenario
 
 TRANSPORTS = ("per-agent", "batched")
@@ -94,21 +95,28 @@ class AgentHost(Node):
             self.create_timer(PARTIAL_WAIT_S / 4, self._answer_late_step)
             batched, publishers = None, list(self.action_pubs.values())
         self.claim = Claim(self, self.ids.tolist(), batched, publishers=publishers)  # the world checks it
+        self.protocol = DriverProtocol(whole_episodes=False)
         self.scenario: Scenario | None = None
-        self.scenario_json = ""
         self.horizon = -1  # its episode's steps (-1: no scenario yet)
         self.expected = 0  # this host's agents that are in the team
         self.episodes = 0
-        self.finished = False  # the current episode has ended (a done observation arrived)
         self._reset_steps()
         self.log.info(f"up: agents {format_ids(self.ids.tolist())} ({transport}), waiting for a world in {namespace}")
+
+    @property
+    def finished(self) -> bool:
+        """Whether the current episode has ended (its done observation arrived)."""
+        return self.protocol.ended
+
+    @property
+    def answered_step(self) -> int:
+        return self.protocol.answered_step
 
     # ---------------------------------------------------------------------- episode
     def _reset_steps(self) -> None:
         self.collecting = -1  # step whose per-agent observations are being gathered
         self.gathered: dict[int, AgentObservation] = {}
         self.gathering_since = 0.0  # when the first of them arrived
-        self.answered_step = -1
         self.answer_ids = np.zeros(0, dtype=np.int64)
         self.answer = np.zeros(0, dtype=np.int64)
         self.wiped_at = -1
@@ -116,13 +124,12 @@ class AgentHost(Node):
     def _start_episode(self) -> None:
         self.team.reset(self.scenario.config.n_agents, self.scenario.seed)
         self._reset_steps()
-        self.finished = False
         self.episodes += 1
 
     def _on_scenario(self, msg: ScenarioDescription) -> None:
-        if msg.scenario_json == self.scenario_json or (scenario := read_scenario(msg, self.log)) is None:
+        if msg.scenario_json == self.protocol.newest or (scenario := read_scenario(msg, self.log)) is None:
             return
-        self.scenario_json, self.scenario, config = msg.scenario_json, scenario, scenario.config
+        self.scenario, config = scenario, scenario.config
         self.horizon = config.episode_steps
         outside = self.ids[self.ids >= config.n_agents]
         if len(outside):
@@ -133,34 +140,34 @@ class AgentHost(Node):
         if wrong:
             self.log.error(f"this host's policies need a world with {wrong}, but the world serves "
                            f"{ {k: getattr(config, k) for k in wrong} }: `formic run` sets them")
-        self._start_episode()
+        if self.protocol.scenario(msg.scenario_json):
+            self._start_episode()
         self.log.info(f"scenario seed {scenario.seed}: driving agents {format_ids(self.ids.tolist())} "
                       f"({self.transport})")
 
-    def _ready(self, step: int, done: bool) -> bool:
-        """Whether an observation of ``step`` should be answered (handles episode ends and a
-        world that starts the same scenario again)."""
-        if not self.scenario_json or not self.claim.ready():
-            return False  # the scenario, the world's confirmation or the recorders missing: the world re-sends
-        if done:
-            self.finished = True
-            return False
-        if self.finished and step == 0:
+    def _turn(self, step: int, done: bool) -> Turn:
+        """The protocol's turn for an observation (none before the world confirmed this host's
+        claim and the recorders matched it: the world re-sends)."""
+        if not self.claim.ready():
+            return Turn.IGNORE
+        turn = self.protocol.receive(step, done)
+        if turn is Turn.START:  # the world plays the scenario again
             self._start_episode()
-        return not self.finished
+        return turn
 
     # ------------------------------------------------------------------- observations
     def _on_agent_observation(self, agent: int, msg: AgentObservation) -> None:
-        if msg.agent_id != agent or not self._ready(msg.step, msg.done):
+        if msg.agent_id != agent:
             return
-        if msg.step == self.answered_step:
+        turn = self._turn(msg.step, msg.done)
+        if turn is Turn.RESEND:
             if agent in self.answer_ids:  # a re-send
                 action = int(self.answer[self.answer_ids == agent][0])
                 self.action_pubs[agent].publish(AgentAction(step=msg.step, agent_id=agent, action=action))
             else:  # late: the others were answered without it
                 self._answer(convert.decode_agent_observations([msg]))
             return
-        if msg.step < max(self.collecting, self.answered_step):
+        if turn not in (Turn.START, Turn.STEP) or msg.step < self.collecting:
             return
         if msg.step > self.collecting:
             self.collecting, self.gathered, self.gathering_since = msg.step, {}, time.monotonic()
@@ -179,13 +186,14 @@ class AgentHost(Node):
             self._answer_gathered()
 
     def _on_batch(self, msg: ObservationBatch) -> None:
-        if not self._ready(msg.step, msg.done) or msg.step < self.answered_step:
+        turn = self._turn(msg.step, msg.done)
+        if turn not in (Turn.START, Turn.STEP, Turn.RESEND):
             return
         rows = convert.rows_of(msg, self.ids)
         rows = rows[rows >= 0]
         if not len(rows):
             return  # none of ours (a re-send for other hosts' agents)
-        if msg.step == self.answered_step:
+        if turn is Turn.RESEND:
             self.actions_pub.publish(convert.encode_actions(msg.step, self.answer_ids, self.answer))
         elif len(rows) == len(msg.agent_ids) and (rows == np.arange(len(rows))).all():
             self._answer(convert.decode_observation_batch(msg))  # every row, in order: no copy
@@ -199,11 +207,12 @@ class AgentHost(Node):
             self.team.wipe()
             self.wiped_at = step
         actions = self.team.act(batch)
-        if step == self.answered_step:  # a late agent of a step answered in part
+        if step == self.protocol.answered_step:  # a late agent of a step answered in part
             self.answer_ids = np.concatenate([self.answer_ids, batch.agent_ids])
             self.answer = np.concatenate([self.answer, actions])
         else:
-            self.answered_step, self.answer_ids, self.answer = step, batch.agent_ids, actions
+            self.protocol.answered(step)
+            self.answer_ids, self.answer = batch.agent_ids, actions
         self.collecting, self.gathered = -1, {}
         if self.transport == "batched":
             self.actions_pub.publish(convert.encode_actions(step, batch.agent_ids, actions))

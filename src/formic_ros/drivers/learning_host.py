@@ -23,6 +23,7 @@ from formic_agent.policy import AgentBatch
 import formic_topics as topics
 from formic_trainer.config import TrainConfig
 from formic_trainer.worlds import Frame
+from formic_world import Scenario
 from formic_world.geometry import N_ACTIONS
 
 from .. import convert, qos
@@ -31,6 +32,7 @@ from ..parameters import declare_settings
 from ..wire import read
 from .claim import Claim
 from .host_actor import HostActor
+from .protocol import DriverProtocol, Turn
 from .world_watch import WorldWatch, read_scenario
 
 
@@ -77,11 +79,9 @@ class LearningHost(Node):
         self.actions_pub = self.create_publisher(ActionBatch, f"~/{topics.ACTIONS}", qos.STREAM_WRITER)
         self.claim = Claim(self, list(self.ids), self.actions_pub.topic_name, publishers=[self.actions_pub])
         self.rollouts_pub = self.create_publisher(RolloutMsg, topics.ROLLOUTS, qos.ROLLOUT)
-        self.played = ""  # scenario of the episode being (or last) played
-        self.next_scenario = ""  # a scenario not played yet
-        self.scenario_json = ""  # the newest scenario seen
+        self.protocol = DriverProtocol(whole_episodes=True)
+        self.scenario: Scenario | None = None  # the newest scenario
         self.horizon = -1  # its episode's steps (-1: none yet)
-        self.playing = False
         self.episodes = 0  # episodes finished
         self.episode_rollouts = 0  # rollouts sent in the current episode
         self.rollouts_sent = 0
@@ -89,15 +89,16 @@ class LearningHost(Node):
         self.ready: tuple[AgentBatch, Frame] | None = None  # to act on once the weights allow
         self.newest = None  # the newest Weights message received
         self.wait_version: int | None = -1  # act only with weights newer than this (None: act now)
-        self.answered_step, self.answer = -1, np.zeros(0, dtype=np.int64)
+        self.answer = np.zeros(0, dtype=np.int64)
         self._start_waiting()  # for the first weights
 
     # ------------------------------------------------------------------------ inputs
     def _on_scenario(self, msg: ScenarioDescription) -> None:
-        if msg.scenario_json in (self.scenario_json, self.played) or (scenario := read_scenario(msg, self.log)) is None:
+        if msg.scenario_json in (self.protocol.newest, self.protocol.played) or (
+                scenario := read_scenario(msg, self.log)) is None:
             return
-        self.scenario_json = self.next_scenario = msg.scenario_json
-        self.horizon = scenario.config.episode_steps
+        self.protocol.scenario(msg.scenario_json)
+        self.scenario, self.horizon = scenario, scenario.config.episode_steps
         if (self.ids >= scenario.config.n_agents).any():
             self.log.error(f"agents {self.ids.tolist()} are not all in this team of {scenario.config.n_agents}")
         self.pump()
@@ -120,55 +121,48 @@ class LearningHost(Node):
         rows = convert.rows_of(msg, self.ids)  # this host's agents, in id order
         if not (rows >= 0).all():
             return True  # a re-send for other hosts' agents
-        step = int(msg.step)
-        if self.ready is not None and step == self.ready[0].step and not msg.done:
-            return True  # a re-send of what waits for weights
-        if self.playing and step == 0 and self.next_scenario and not msg.done:
-            self.log.warning("a new episode started before this one ended: its last chunk is dropped")
-            self.playing = False
-        if self.playing and step == self.answered_step and not msg.done:
-            self.actions_pub.publish(convert.encode_actions(step, self.ids, self.answer))  # a re-send
-            return True
-        if not self.playing:
-            if msg.done or step != 0:
-                return True  # the end or the middle of an episode this host did not play
-            if not self.next_scenario:
-                return False
-        elif step != self.answered_step + 1:
-            return True  # stale
         if not len(msg.train_masks):
             self.log.error("the observations carry no training masks: run the world with --training-masks",
                            once=True)
             return True
+        turn = self.protocol.receive(int(msg.step), bool(msg.done))
+        if turn is Turn.HOLD:
+            return False
+        if turn is Turn.RESEND:
+            self.actions_pub.publish(convert.encode_actions(msg.step, self.ids, self.answer))
+        if turn in (Turn.IGNORE, Turn.RESEND):
+            return True
         batch = convert.decode_observation_batch(msg, rows)
-        starting = not self.playing
-        if starting:  # before its first frame: the agents' action feedback starts afresh
-            self._start_episode(batch)
+        if turn is Turn.START:  # before its first frame: the agents' action feedback starts afresh
+            if self.protocol.cut_short:
+                self.log.warning("a new episode started before this one ended: its last chunk is dropped")
+            self.episode_rollouts = 0
+            self.actor.begin(batch, self.scenario.config.load_denominator)
         train_mask = read(msg.train_masks, np.uint8).reshape(-1, N_ACTIONS)[rows].astype(bool)
         frame = self.actor.frame(batch, train_mask, read(msg.rewards, np.float32), rows)
-        if not starting:
-            rollout = self.actor.outcome(frame, batch.loads, bool(msg.done))
-            if rollout is not None:
-                self.rollouts_pub.publish(convert.encode_rollout(rollout))
-                self.episode_rollouts += 1
-                self.rollouts_sent += 1
-                if self.switch == "chunk":  # act on with the weights this rollout makes
-                    self.wait_version = self.actor.version
-                    self._start_waiting()
-                elif msg.done:  # start the next episode with the weights all of this one's make
-                    self.wait_version = self.actor.version + self.episode_rollouts - 1
-                    self._start_waiting()
-            if msg.done:
-                self.playing = False
-                self.episodes += 1
-                return True
-        self.ready = (batch, frame)
+        if turn is not Turn.START:
+            self._learn_from(frame, batch.loads, turn is Turn.END)
+        if turn is Turn.END:
+            self.episodes += 1
+        else:
+            self.ready = (batch, frame)
         return True
 
-    def _start_episode(self, batch: AgentBatch) -> None:
-        self.played, self.next_scenario = self.next_scenario, ""
-        self.playing, self.answered_step, self.episode_rollouts = True, -1, 0
-        self.actor.start_episode(batch.loads)
+    def _learn_from(self, frame: Frame, loads: np.ndarray, done: bool) -> None:
+        """A step's outcome: a rollout to the trainer when its chunk is complete, and which
+        weights to wait for before acting on."""
+        rollout = self.actor.outcome(frame, loads, done)
+        if rollout is None:
+            return
+        self.rollouts_pub.publish(convert.encode_rollout(rollout))
+        self.episode_rollouts += 1
+        self.rollouts_sent += 1
+        if self.switch == "chunk":  # act on with the weights this rollout makes
+            self.wait_version = self.actor.weights_version
+            self._start_waiting()
+        elif done:  # start the next episode with the weights all of this one's make
+            self.wait_version = self.actor.weights_version + self.episode_rollouts - 1
+            self._start_waiting()
 
     def _start_waiting(self) -> None:
         """A wait for weights starts: reported after WEIGHTS_WAIT_LOG_S, and then as often."""
@@ -214,8 +208,8 @@ class LearningHost(Node):
             return
         batch, frame = self.ready
         self.ready = None
-        self.answer = self.actor.act(batch, frame)
-        self.answered_step = batch.step
+        self.answer = self.actor.act_on(batch, frame)
+        self.protocol.answered(batch.step)
         self.actions_pub.publish(convert.encode_actions(batch.step, self.ids, self.answer))
 
 
@@ -236,7 +230,8 @@ def serve_learning_agents(agent_ids: list[int], cfg: TrainConfig, switch: str = 
             while not (episodes is not None and host.episodes >= episodes):
                 executor.spin_once(timeout_sec=0.2)
                 host.pump()  # also says so when the weights are late
-                next_step = host.answered_step + 1 if host.playing else host.horizon
+                protocol = host.protocol
+                next_step = protocol.answered_step + 1 if protocol.playing else host.horizon
                 if episodes is not None and watch.ended(next_step, host.horizon):
                     break  # between episodes, or only the final observation was lost
             host.rollouts_pub.wait_for_all_acked(Duration(seconds=5.0))
