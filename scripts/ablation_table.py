@@ -16,28 +16,24 @@ label (formic_eval.paper.PAPER_ABLATION) is printed beside each, with its own ra
 from __future__ import annotations
 
 import argparse
-import json
 import statistics
 from collections import defaultdict
 from pathlib import Path
 
 from formic_eval.paper import PAPER_ABLATION, PAPER_SIZE, PAPER_STEPS, PAPER_TEAMS
+from formic_eval.runner import folder_episodes
 
 
 def row_food(eval_dir: Path, variant: str) -> tuple[dict[int, list[float]], str]:
     """Food per team size of the paper-protocol episodes of one model and variant in ``eval_dir``."""
     food: dict[int, list[float]] = defaultdict(list)
     models = set()
-    with open(eval_dir / "episodes.jsonl") as log:
-        for line in log:
-            if not line.strip():
-                continue
-            episode = json.loads(line)
-            if (episode["algorithm"], episode["variant"], episode["size"], episode["steps"], episode["env"],
-                    episode["obstacles"]) != ("formic", variant, PAPER_SIZE, PAPER_STEPS, "infinite", 0.0):
-                continue
-            models.add(episode["model"])
-            food[episode["agents"]].append(episode["food"])
+    for episode in folder_episodes(eval_dir):
+        if (episode["algorithm"], episode["variant"], episode["size"], episode["steps"], episode["env"],
+                episode["obstacles"]) != ("formic", variant, PAPER_SIZE, PAPER_STEPS, "infinite", 0.0):
+            continue
+        models.add(episode["model"])
+        food[episode["agents"]].append(episode["food"])
     if len(models) != 1:
         raise SystemExit(f"{eval_dir} holds {len(models)} models' formic episodes with variant {variant!r}; "
                          "expected exactly one")

@@ -16,8 +16,10 @@ def episode(agents: int, food: float, model: str = "m1", variant: str = "", **ch
 
 
 def write(directory, episodes: list[dict]) -> None:
+    """A plain episode log, each record under its own key as the evaluation logs them."""
     directory.mkdir()
-    (directory / "episodes.jsonl").write_text("".join(json.dumps(e) + "\n" for e in episodes))
+    (directory / "episodes.jsonl").write_text("".join(json.dumps({"key": str(i)} | e) + "\n"
+                                                      for i, e in enumerate(episodes)))
 
 
 def full_set(model: str = "m1", variant: str = "", scale: float = 1.0) -> list[dict]:

@@ -17,7 +17,7 @@ from formic_eval import aggregate, food_stats
 from formic_eval.matrix import PolicyOptions, Setting, generate_matrix, layout_seed, load_matrix, plan_tasks
 from formic_eval.paper import markdown_report, paper_food
 from formic_eval.plots import plot_food_vs_team, published_line
-from formic_eval.runner import EpisodeLog, evaluate, run_tasks
+from formic_eval.runner import EpisodeLog, evaluate, folder_episodes, run_tasks
 from formic_world import Scenario, WorldConfig
 from formic_world.scenario_sets import generate_set
 
@@ -87,7 +87,7 @@ def test_json_is_one_object_with_a_cell_per_algorithm_and_setting(base_run):
 def test_every_algorithm_runs_the_same_stored_scenarios(base_run):
     out, _ = base_run
     seen: dict[tuple, dict[str, set]] = {}
-    for r in _lines(out / "episodes.jsonl"):
+    for r in folder_episodes(out):
         setting = (r["size"], r["agents"], r["obstacles"], r["env"], r["steps"])
         used = seen.setdefault(setting, {}).setdefault(r["algorithm"], set())
         used.add((r["scenario"], r["scenario_digest"], r["seed"]))
@@ -141,7 +141,7 @@ def test_torn_last_line_is_cut_and_that_episode_redone(base_run, run_copy):
     assert summary["episodes"]["computed"] == 1 and summary["log"]["torn_line_removed"]
     records = _lines(log)
     assert len(records) == N_TASKS == len({r["key"] for r in records})
-    original = {r["key"]: r["food"] for r in _lines(base_run[0] / "episodes.jsonl")}
+    original = {r["key"]: r["food"] for r in folder_episodes(base_run[0])}
     assert {r["key"]: r["food"] for r in records} == original  # episodes are deterministic
 
 

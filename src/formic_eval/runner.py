@@ -3,12 +3,15 @@
 Each finished episode is one JSON line appended to ``episodes.jsonl`` by the parent process
 alone (flushed and fsynced), so an interrupted run loses at most the episodes in flight; a
 torn last line (killed mid-write) is cut off on the next start and that episode is redone.
+A finished evaluation's log is sealed into ``episodes.jsonl.gz`` (:meth:`EpisodeLog.seal`), the
+compact form the repository keeps; episodes run later go to a plain ``episodes.jsonl`` beside it.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import functools
+import gzip
 import json
 import os
 import signal
@@ -31,29 +34,43 @@ class EpisodeError(RuntimeError):
     """An episode raised; names the algorithm and scenario file."""
 
 
+LOG_NAME = "episodes.jsonl"
+SEALED_SUFFIX = ".gz"
+SEAL_LEVEL = 9  # fixed, so the same episodes always seal to the same bytes
+
+
 class EpisodeLog:
-    """The append-only record of finished episodes, keyed by :attr:`Task.key`."""
+    """The record of finished episodes, keyed by :attr:`Task.key`: the sealed part (``PATH.gz``,
+    read-only) and the plain append-only tail (``PATH``); a tail record replaces a sealed one of
+    the same key."""
 
     def __init__(self, path: Path):
         self.path = Path(path)
+        self.sealed_path = self.path.with_name(self.path.name + SEALED_SUFFIX)
         self.skipped_lines = 0
         self.repaired = False
         self._handle = None
 
     def load(self) -> dict[str, dict]:
-        """Finished episodes; cuts off a torn last line and skips unreadable ones."""
-        if not self.path.exists():
-            return {}
-        data = self.path.read_bytes()
-        end = data.rfind(b"\n") + 1
-        if end < len(data):
-            with open(self.path, "r+b") as handle:
-                handle.truncate(end)
-                handle.flush()
-                os.fsync(handle.fileno())
-            self.repaired = True
+        """Finished episodes, sealed ones first in their sealed order, then the tail's in its
+        order; cuts off a torn last line of the tail and skips unreadable lines."""
         records: dict[str, dict] = {}
-        for line in data[:end].splitlines():
+        if self.sealed_path.exists():
+            self._read_lines(gzip.decompress(self.sealed_path.read_bytes()), records)
+        if self.path.exists():
+            data = self.path.read_bytes()
+            end = data.rfind(b"\n") + 1
+            if end < len(data):
+                with open(self.path, "r+b") as handle:
+                    handle.truncate(end)
+                    handle.flush()
+                    os.fsync(handle.fileno())
+                self.repaired = True
+            self._read_lines(data[:end], records)
+        return records
+
+    def _read_lines(self, data: bytes, records: dict[str, dict]) -> None:
+        for line in data.splitlines():
             if not line.strip():
                 continue
             try:
@@ -61,7 +78,30 @@ class EpisodeLog:
                 records[record["key"]] = record
             except (ValueError, KeyError, TypeError):
                 self.skipped_lines += 1
-        return records
+
+    def seal(self) -> Path:
+        """Fold every finished episode into the sealed file and delete the plain tail.
+
+        The records keep :meth:`load`'s order (what reports resample or sum in record order
+        comes out the same), one compact JSON line each as :meth:`append` writes them, gzipped at
+        :data:`SEAL_LEVEL` with mtime 0: the same episodes seal to the same bytes, and a log
+        that was never resumed unpacks to exactly its plain file. Refuses a log with unreadable
+        lines (they would be lost)."""
+        self.close()
+        records = self.load()
+        if self.skipped_lines:
+            raise ValueError(f"{self.path}: {self.skipped_lines} unreadable line(s); not sealed")
+        if not records:
+            raise ValueError(f"{self.path}: no episodes to seal")
+        text = "".join(json.dumps(record, separators=(",", ":")) + "\n" for record in records.values())
+        partial = self.sealed_path.with_name(self.sealed_path.name + ".partial")
+        with open(partial, "wb") as handle:
+            handle.write(gzip.compress(text.encode(), compresslevel=SEAL_LEVEL, mtime=0))
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(partial, self.sealed_path)
+        self.path.unlink(missing_ok=True)
+        return self.sealed_path
 
     def append(self, record: dict) -> None:
         if self._handle is None:
@@ -77,9 +117,15 @@ class EpisodeLog:
             self._handle = None
 
 
+def folder_log(folder: str | Path) -> EpisodeLog:
+    """The episode log of an evaluation folder (sealed, plain, both or not yet started)."""
+    return EpisodeLog(Path(folder) / LOG_NAME)
+
+
 def folder_episodes(folder: str | Path) -> list[dict]:
-    """Every finished episode of an evaluation folder ([] when it has none yet)."""
-    return list(EpisodeLog(Path(folder) / "episodes.jsonl").load().values())
+    """Every finished episode of an evaluation folder ([] when it has none yet): the one way
+    reports and tables read episodes, sealed or not."""
+    return list(folder_log(folder).load().values())
 
 
 @functools.cache
@@ -247,7 +293,7 @@ def evaluate(
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     tasks = plan_tasks(matrix, algorithms, options)
-    log = EpisodeLog(out / "episodes.jsonl")
+    log = folder_log(out)
     done = log.load()
     stats = run_tasks(tasks, log, done, workers=workers, progress=progress)
     records = [done[t.key] for t in tasks if t.key in done]
@@ -304,7 +350,7 @@ def report_everything(out: Path) -> dict:
     from .results import aggregate
 
     out = Path(out)
-    log = EpisodeLog(out / "episodes.jsonl")
+    log = folder_log(out)
     records = list(log.load().values())
     cells = aggregate(records)
     run = {"algorithms": sorted({r["algorithm"] for r in records}), "scenarios": str(out / "scenarios"),

@@ -1,7 +1,7 @@
 """The paper's Tables I-III (ablations, non-learning agents, field of view) from evaluation folders.
 
 Each row is the paper recipe trained with one switch (``formic train --recipe paper --switch
-NAME``), evaluated on the stored test scenarios, in ``ROOT/NAME/episodes.jsonl``; the reference
+NAME``), evaluated on the stored test scenarios, in the episode log of ``ROOT/NAME``; the reference
 (the unchanged recipe at the same budget) in ``ROOT/reference``; where the reference was trained
 with several seeds (``eval/tables-seedS/reference``), their mean per scenario. As the paper
 computed Table I, a row's relative performance is its food over the reference's on the same
@@ -69,7 +69,7 @@ def model_episodes(folder: Path, variant: str) -> list[dict]:
     records = [r for r in test_set_episodes(folder_episodes(folder), "formic", variant) if cell_of(r) is not None]
     models = {r["model"] for r in records}
     if len(models) > 1:
-        raise ValueError(f"{Path(folder) / 'episodes.jsonl'}: episodes of several models "
+        raise ValueError(f"{folder}: episodes of several models "
                          f"({', '.join(sorted(models))}); one row, one model")
     return records
 
