@@ -18,9 +18,10 @@ from click.testing import CliRunner
 from formic_agent.checkpoint import load_network, read_checkpoint
 from formic_cli.main import cli
 from formic_eval.matrix import file_digest, layout_seed
+from formic_eval.runner import folder_episodes
 from formic_trainer.actor import filter_probability
 from formic_trainer.config import load_train_config
-from formic_trainer.recipe import SELECTION_RULE, load_recipe, run_recipe, stage_config, weights_file
+from formic_trainer.recipe import SELECTION_RULE, cpu_seconds_left, load_recipe, run_recipe, stage_config, weights_file
 
 ROOT = Path(__file__).resolve().parents[1]
 SMOKE = load_recipe("smoke")
@@ -99,7 +100,7 @@ def check_stage_validation(run_dir: Path, selection: dict) -> None:
     for row in rows[1:]:
         name, episodes, food = row.split()[:3]
         assert (int(episodes), float(food)) == (2, round(selection["candidates"][name]["food_mean"], 1))
-    records = [json.loads(line) for line in (run_dir / "validation" / "first.latest" / "episodes.jsonl").open()]
+    records = folder_episodes(run_dir / "validation" / "first.latest")
     assert sorted(r["agents"] for r in records) == [2, 3]
     assert {r["model"] for r in records} == {file_digest(run_dir / "first" / "latest.pt")}
     only = subprocess.run([sys.executable, str(ROOT / "scripts" / "stage_validation.py"), str(run_dir),
@@ -127,7 +128,7 @@ def test_a_recipe_runs_every_stage_then_chooses_on_validation_and_resumes_after_
     assert digest(whole / "model.pt") == digest(weights_file(whole, selection["chosen"]))
     first_seed = layout_seed(99, 16, 0.0, "infinite")
     for name in [*SMOKE.candidates, selection["chosen"] + "-channel-empty"]:
-        records = [json.loads(line) for line in (whole / "validation" / name / "episodes.jsonl").open()]
+        records = folder_episodes(whole / "validation" / name)
         assert sorted((r["agents"], r["seed"]) for r in records) == [(2, first_seed), (3, first_seed)]
     check_model_card(whole, selection, tmp_path)
     check_stage_validation(whole, selection)
@@ -176,6 +177,10 @@ SMOKE_TEXT = (ROOT / "recipes" / "smoke.toml").read_text()
     ('candidates = ["middle.mean", "last.mean"]', 'candidates = ["first.best", "last.mean"]',
      "candidates 'first.best': stage 'first' keeps no best.pt"),
     ('start = "scratch"', 'start = "scratch"\nscaled = "no"', "stage 'first'.scaled must be true or false"),
+    ('start = "scratch"', 'start = "scratch"\ncost = 0', "stage 'first'.cost must be a number > 0 (CPU-seconds per "
+                                                         "episode), not 0"),
+    ("steps = 128", 'steps = 128\ncost = "6"', "validation.cost must be a number > 0 (CPU-seconds per episode), "
+                                               "not '6'"),
 ])
 def test_a_malformed_recipe_is_one_line_of_error_before_anything_runs(tmp_path, old, new, message):
     assert old in SMOKE_TEXT
@@ -284,7 +289,7 @@ def test_a_run_resumes_on_another_thread_count_and_validates_in_as_many_processe
     assert (parts / "recipe.json").read_text() == claim
     assert load_train_config(parts / "middle" / "config.json").threads == 2
     assert load_train_config(parts / "first" / "config.json").threads == 1  # done before: untouched
-    records = [json.loads(line) for line in (parts / "validation" / "last.mean" / "episodes.jsonl").open()]
+    records = folder_episodes(parts / "validation" / "last.mean")
     assert {r["workers"] for r in records} == {2}
     bad = CliRunner().invoke(cli, ["train", "--recipe", "smoke", "--seed", "1", "--run-dir", str(parts),
                                    "--threads", "0"])
@@ -434,3 +439,68 @@ def test_the_guarded_recipe_is_the_paper_recipe_with_guards_within_five_cpu_hour
     assert "1, 2, 3, 4, 5, 6, 7, 8" in v2.text
     parsed = cli.commands["train"].make_context("train", ["--recipe", "paper-v2", "--seed", "1", "--run-dir", "X"])
     assert (parsed.params["recipe"], parsed.params["seed"]) == ("paper-v2", 1)
+
+
+def costed_smoke(tmp_path: Path) -> Path:
+    """The smoke recipe with planned costs (CPU-seconds per episode: first 10, middle 20, last 30,
+    a validation episode 5) and a first stage of 10 episodes, long enough to measure its own."""
+    recipe = tmp_path / "costed.toml"
+    recipe.write_text(SMOKE_TEXT.replace('episodes = 4\nstart = "scratch"',
+                                         'episodes = 10\nstart = "scratch"\ncost = 10')
+                      .replace('start = "first"', 'start = "first"\ncost = 20')
+                      .replace('start = "middle.mean"', 'start = "middle.mean"\ncost = 30')
+                      .replace("steps = 128", "steps = 128\ncost = 5"))
+    return recipe
+
+
+def test_the_time_left_is_each_stages_measured_cost_after_eight_episodes_else_its_planned_one(tmp_path):
+    """Stages of 10, 4 and 4 episodes at 10, 20 and 30 CPU-s planned; the validation plays 2
+    episodes (2 team sizes x 1 scenario) for each of 2 candidates and once more with the channel
+    empty: 6 x 5 = 30 CPU-s."""
+    from formic_trainer.recipe import _Run
+
+    recipe = load_recipe(str(costed_smoke(tmp_path)))
+    assert [s.cost for s in recipe.stages] == [10.0, 20.0, 30.0] and recipe.validation.cost == 5.0
+    rest = 4 * 20 + 4 * 30 + 30  # the stages after the first, and the validation
+    assert cpu_seconds_left(recipe, 0) == 10 * 10 + rest
+    assert cpu_seconds_left(recipe, 0, 7, 700.0) == 3 * 10 + rest  # 7 episodes: still the planned cost
+    assert cpu_seconds_left(recipe, 0, 8, 160.0) == 2 * 20 + rest  # 8 episodes: its measured 20 per episode
+    assert cpu_seconds_left(recipe, 1, 2, 1000.0) == 2 * 20 + 4 * 30 + 30
+    assert cpu_seconds_left(recipe, 3) == 30 and cpu_seconds_left(recipe, 3, validated=True) == 0
+    assert cpu_seconds_left(recipe, 3, with_pheromones=False) == 20  # no channel-empty replay
+    assert cpu_seconds_left(SMOKE, 0) is None  # no planned costs: no time left shown
+    run = _Run(recipe, tmp_path / "run", 1, print)
+    run.episodes, run.cpu_seconds = 10, 720.0  # the first stage done
+    assert run.budget(1, 2, 1440.0) == "recipe 12/18 episodes, 0.60/0.0 CPU-h (over budget), ~0.1 CPU-h left"
+    assert run.budget(3) == "recipe 10/18 episodes, 0.20/0.0 CPU-h (over budget), ~0.0 CPU-h left"
+    assert _Run(SMOKE, tmp_path / "plain", 1, print).budget(0, 2, 36.0) == "recipe 2/12 episodes, 0.01/0.0 CPU-h"
+
+
+def test_planned_costs_are_not_part_of_a_runs_identity(tmp_path):
+    """A run claimed by a recipe without costs resumes under the same recipe with them, and the
+    committed paper runs (seed 1's claim holds the text of paper.toml before costs existed) still
+    resume under today's paper.toml; striking the costs from either paper recipe changes nothing
+    it trains."""
+    import shutil
+    import tomllib
+
+    from formic_trainer.recipe import _parse, _Run, held_identity
+
+    costed = load_recipe(str(costed_smoke(tmp_path)))
+    without = tmp_path / "without.toml"
+    without.write_text(re.sub(r"(?m)^cost = .*\n", "", costed.text))
+    assert load_recipe(str(without)).identity == costed.identity
+    _Run(load_recipe(str(without)), tmp_path / "run", 1, print)
+    _Run(costed, tmp_path / "run", 1, print)  # accepted
+    for name in ("paper", "paper-v2"):
+        recipe = load_recipe(name)
+        assert all(stage.cost for stage in recipe.stages) and recipe.validation.cost == 6.0
+        bare = re.sub(r"(?m)^cost = .*\n", "", recipe.text)
+        assert bare != recipe.text and _parse(tomllib.loads(bare), recipe.source, bare).identity == recipe.identity
+    claim = ROOT / "models" / "training" / "recipe-paper" / "seed1" / "recipe.json"
+    held = json.loads(claim.read_text())
+    assert "identity" not in held and "cost =" not in held["text"]
+    assert held_identity(held) == load_recipe("paper").identity
+    (tmp_path / "seed1").mkdir()
+    shutil.copy(claim, tmp_path / "seed1" / "recipe.json")
+    _Run(load_recipe("paper"), tmp_path / "seed1", 1, print)  # accepted

@@ -1,10 +1,13 @@
 """The algorithm (SPEC §6: actor-critic, loss = L_pi (entropy bonus) + 0.5 L_V + 0.5 L_valid,
 queued steps masked out; the ``cpu`` preset adds PPO clipping and GAE): network, sampling
-mask, loss terms, GAE, one update, the optimiser and its learning rate."""
+mask, loss terms, GAE, one update (in fp32, or its forward+backward under bf16 autocast where the
+CPU has native bf16), the optimiser and its learning rate."""
 
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -13,6 +16,7 @@ import torch.nn.functional as F
 from formic_agent.inputs import NETWORK_PRESETS
 
 from formic_agent.network import ForMICNet
+from formic_world.errors import InputError
 
 from .config import TrainConfig
 from .rollout import Rollout
@@ -163,7 +167,8 @@ def update(net: ForMICNet, optimizer: torch.optim.Optimizer, cfg: TrainConfig, r
         for chunk in np.array_split(order, n_batches):
             idx = torch.from_numpy(chunk)
             batch = {k: v[:, idx] for k, v in tensors.items()}
-            terms = policy_losses(net, cfg, batch)
+            with torch.autocast("cpu", dtype=torch.bfloat16, enabled=cfg.update_precision == "bf16"):
+                terms = policy_losses(net, cfg, batch)
             stopped = cfg.target_kl > 0 and float(terms["approx_kl"]) > 1.5 * cfg.target_kl
             if not stopped:
                 optimizer.zero_grad()
@@ -178,6 +183,29 @@ def update(net: ForMICNet, optimizer: torch.optim.Optimizer, cfg: TrainConfig, r
         if stopped:
             break
     return {k: float(np.mean(v)) for k, v in stats.items()} | {"update_fraction": steps / (cfg.epochs * n_batches)}
+
+
+# CPU flags of the instructions that make bf16 matrix products fast (Intel AMX, AVX-512 BF16);
+# without them bf16 is emulated, slower than fp32
+BF16_FLAGS = frozenset({"amx_bf16", "avx512_bf16"})
+
+
+def cpu_flags(cpuinfo: Path = Path("/proc/cpuinfo")) -> frozenset[str]:
+    """The first CPU's feature flags as Linux lists them (empty where the file or line is missing)."""
+    try:
+        text = cpuinfo.read_text()
+    except OSError:
+        return frozenset()
+    line = next((line for line in text.splitlines() if line.startswith("flags")), "")
+    return frozenset(line.partition(":")[2].split())
+
+
+def check_update_precision(cfg: TrainConfig, flags: Callable[[], frozenset[str]] = cpu_flags) -> None:
+    """Refuse ``update_precision = "bf16"`` on a CPU without native bf16 arithmetic (``flags``
+    reads the CPU's feature flags)."""
+    if cfg.update_precision == "bf16" and not BF16_FLAGS & flags():
+        raise InputError("update_precision 'bf16' needs a CPU with amx_bf16 or avx512_bf16 (not in this CPU's "
+                         "/proc/cpuinfo flags): use 'fp32'")
 
 
 def set_learning_rate(optimizer: torch.optim.Optimizer, cfg: TrainConfig, updates: int, factor: float = 1.0) -> None:

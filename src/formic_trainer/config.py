@@ -59,6 +59,7 @@ class TrainConfig:
     lr: float = 5e-6
     lr_warmup: int = 0  # ramp the learning rate up over the first N updates of a run (0 = off)
     max_grad_norm: float = 10.0
+    update_precision: Literal["fp32", "bf16"] = "fp32"  # bf16: the update's forward+backward under bf16 autocast
     loss_reduction: Literal["sum", "mean"] = "sum"  # "sum": gradients of all learning agents are summed (paper)
     normalize_advantages: bool = False
     reward_scale: float = 1.0

@@ -17,7 +17,7 @@ import torch
 
 from formic_agent.checkpoint import CheckpointError, initialise_from, load_network, read_checkpoint, save_checkpoint
 
-from .algorithm import make_optimizer, set_learning_rate, training_network, update
+from .algorithm import check_update_precision, make_optimizer, set_learning_rate, training_network, update
 from .config import TrainConfig, plain
 from .guard import BEST, ROLL_BACK, WATCH, FallGuard, Verdict
 from .rollout import Rollout
@@ -38,6 +38,7 @@ def learner_stream(cfg: TrainConfig, updates: int) -> np.random.Generator:
 
 class Learner:
     def __init__(self, cfg: TrainConfig, run_dir: Path, resume: bool = True, log: Callable[[str], None] = print):
+        check_update_precision(cfg)
         self.cfg = cfg
         self.run_dir = Path(run_dir)
         self.run_dir.mkdir(parents=True, exist_ok=True)

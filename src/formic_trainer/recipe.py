@@ -46,6 +46,8 @@ SCHEDULES = (("filter_anneal_start", "filter_anneal_end"), ("curriculum_start", 
 EPISODE_SETTINGS = ("guard_after",)
 # a stage reference's part -> the file in the stage's folder: "NAME", "NAME.mean", "NAME.best"
 WEIGHTS = {"": "latest.pt", "mean": "mean.pt", "best": "best.pt"}
+# a stage's own CPU clock per episode replaces its planned `cost` once it has run this many episodes
+MEASURED_AFTER = 8
 
 
 class RecipeError(InputError):
@@ -59,6 +61,7 @@ class Stage:
     start: str  # "scratch", an earlier stage's name (its final weights), "<stage>.mean" or "<stage>.best"
     settings: dict  # every TrainConfig field this stage sets, inherited ones included
     average: tuple[int, int] | None  # (first, every): the mean of the checkpoints first, first+every, ..., episodes
+    cost: float | None = None  # planned CPU-seconds per episode (the progress line's time left; not identity)
 
     def snapshots(self) -> tuple[int, ...]:
         """The episodes whose weights the stage's mean averages."""
@@ -74,6 +77,12 @@ class Validation:
     teams: tuple[int, ...]
     scenarios: int
     steps: int
+    cost: float | None = None  # planned CPU-seconds per validation episode (not identity)
+
+    @property
+    def episodes(self) -> int:
+        """Episodes one model plays on the validation set."""
+        return self.scenarios * len(self.teams)
 
 
 @dataclass(frozen=True)
@@ -97,10 +106,15 @@ class Recipe:
     def identity(self) -> str:
         """What a run of this recipe trains and how it chooses, as canonical JSON: a run
         directory resumes only under the same identity (comments, the budget line and other
-        switches may change in between)."""
-        return json.dumps({"preset": self.preset, "stages": [asdict(stage) for stage in self.stages],
-                           "candidates": self.candidates, "validation": asdict(self.validation)},
+        switches and the planned costs may change in between)."""
+        return json.dumps({"preset": self.preset, "stages": [_trained(stage) for stage in self.stages],
+                           "candidates": self.candidates, "validation": _trained(self.validation)},
                           sort_keys=True)
+
+
+def _trained(part: Stage | Validation) -> dict:
+    """A stage or the validation as a run's identity holds it: without its planned cost."""
+    return {key: value for key, value in asdict(part).items() if key != "cost"}
 
 
 def recipe_path(spec: str) -> Path:
@@ -227,7 +241,7 @@ def _parse(data: dict, path: Path, text: str, switch: str = "", scale: float = 1
     if not isinstance(data["stage"], list) or not data["stage"]:
         raise RecipeError("needs one or more [[stage]] tables")
     for i, table in enumerate(data["stage"]):
-        _keys(table, f"stage {i + 1}", {"name", "episodes", "start"}, {"set", "average", "scaled"})
+        _keys(table, f"stage {i + 1}", {"name", "episodes", "start"}, {"set", "average", "scaled", "cost"})
         name, start = table["name"], table["start"]
         where = f"stage {name!r}"
         earlier = {s.name: s for s in stages}
@@ -261,22 +275,57 @@ def _parse(data: dict, path: Path, text: str, switch: str = "", scale: float = 1
             if average is not None:
                 average = (min(_scaled(average[0], scale, average[1]), episodes), average[1])
             staged = staged | _scaled_schedules(cfg, scale)
-        stages.append(Stage(name, episodes, start, staged, average))
+        stages.append(Stage(name, episodes, start, staged, average, _cost(table, where)))
     candidates = data["candidates"]
     if not isinstance(candidates, list) or not candidates or len(set(candidates)) < len(candidates):
         raise RecipeError("candidates must be a list of distinct stages or stage means")
     for candidate in candidates:
         _reference(candidate, {s.name: s for s in stages}, "candidates", data["preset"])
-    table = _keys(data["validation"], "validation", {"seed", "size", "teams", "scenarios", "steps"})
+    table = _keys(data["validation"], "validation", {"seed", "size", "teams", "scenarios", "steps"}, {"cost"})
     teams = table["teams"]
     if not isinstance(teams, list) or not teams or not all(type(n) is int and n > 0 for n in teams):
         raise RecipeError("validation.teams must be a list of team sizes")
     validation = Validation(_number(table, "seed", "validation", least=0), _number(table, "size", "validation"),
                             tuple(teams), _number(table, "scenarios", "validation"),
-                            _number(table, "steps", "validation"))
+                            _number(table, "steps", "validation"), _cost(table, "validation"))
     budget = _number(data, "budget_cpu_hours", "recipe", float, 0) * sum(s.episodes for s in stages) / full_episodes
     return Recipe(path, text, data["preset"], budget, tuple(stages), tuple(candidates), validation, switch,
                   switch_names, scale)
+
+
+def _cost(table: dict, where: str) -> float | None:
+    """A table's optional ``cost``: planned CPU-seconds per episode, above 0."""
+    cost = table.get("cost")
+    if cost is None:
+        return None
+    if type(cost) not in (int, float) or cost <= 0:
+        raise RecipeError(f"{where}.cost must be a number > 0 (CPU-seconds per episode), not {cost!r}")
+    return float(cost)
+
+
+def cpu_seconds_left(recipe: Recipe, index: int, episode: int = 0, cpu_seconds: float = 0.0,
+                     validated: bool = False, with_pheromones: bool = True) -> float | None:
+    """The CPU-seconds a run still needs with stage ``index`` in progress at ``episode``, having
+    spent ``cpu_seconds`` on it (the stages before it done, those after it not started; ``index``
+    = the number of stages: all done): each unfinished stage's episodes left at its measured cost
+    per episode once it has run :data:`MEASURED_AFTER` episodes, else at its planned ``cost``; and
+    the validation's planned cost (every candidate, and the chosen one again with the pheromone
+    channel empty when the recipe trains ``with_pheromones``) unless ``validated``. None where a
+    cost is needed and the recipe plans none."""
+    left = 0.0
+    for i, stage in enumerate(recipe.stages[index:], start=index):
+        done = episode if i == index else 0
+        cost = cpu_seconds / done if done >= MEASURED_AFTER else stage.cost
+        if done < stage.episodes:
+            if cost is None:
+                return None
+            left += (stage.episodes - done) * cost
+    if not validated:
+        v = recipe.validation
+        if v.cost is None:
+            return None
+        left += v.cost * v.episodes * (len(recipe.candidates) + with_pheromones)
+    return left
 
 
 def _reference(ref: str, stages: dict[str, Stage], where: str, preset: str) -> None:
@@ -371,10 +420,17 @@ class _Run:
             raise RecipeError(f"{run_dir} holds a run of another recipe, switch, scale or seed ({claim}): "
                               "use a new --run-dir")
 
-    def budget(self, episodes: int, cpu_seconds: float) -> str:
-        hours, budget = cpu_seconds / 3600, self.recipe.budget_cpu_hours
-        return (f"recipe {episodes}/{self.recipe.episodes} episodes, {hours:.2f}/{budget:.1f} CPU-h"
-                f"{' (over budget)' if hours > budget else ''}")
+    def budget(self, index: int, episode: int = 0, cpu_seconds: float = 0.0) -> str:
+        """The progress line's budget with stage ``index`` at ``episode`` after ``cpu_seconds``
+        (``index`` = the number of stages: the run is over, validation included): episodes
+        done, CPU-hours spent and, where the costs are known, the CPU-hours left."""
+        recipe = self.recipe
+        hours, budget = (self.cpu_seconds + cpu_seconds) / 3600, recipe.budget_cpu_hours
+        with_pheromones = make_config(recipe.preset, **recipe.stages[-1].settings).pheromones
+        left = cpu_seconds_left(recipe, index, episode, cpu_seconds, index == len(recipe.stages), with_pheromones)
+        return (f"recipe {self.episodes + episode}/{recipe.episodes} episodes, {hours:.2f}/{budget:.1f} CPU-h"
+                f"{' (over budget)' if hours > budget else ''}"
+                f"{'' if left is None else f', ~{left / 3600:.1f} CPU-h left'}")
 
     def stage(self, index: int) -> None:
         """Train stage ``index`` to its end in chunks that stop at every episode its mean
@@ -390,12 +446,12 @@ class _Run:
             resume = f", resuming at episode {episode}" if episode else ""
             resume += f", {self.threads} torch thread(s)" if self.threads else ""
             self.echo(f"stage {index + 1}/{count} {stage.name}: {stage.episodes} episodes from {stage.start}{fresh}"
-                      f"{resume} | {self.budget(self.episodes + episode, self.cpu_seconds + progress['cpu_seconds'])}")
+                      f"{resume} | {self.budget(index, episode, progress['cpu_seconds'])}")
             cfg = stage_config(self.recipe, index, self.run_dir, self.seed, self.threads)
             while episode < stage.episodes:
                 self.snapshot(stage, episode)
                 self.trainer = None  # while it starts: its lines carry no budget yet
-                self.trainer = Trainer(cfg, where, log=lambda line: self.log(stage, line))
+                self.trainer = Trainer(cfg, where, log=lambda line: self.log(index, line))
                 stop = min([e for e in stage.snapshots() if e > episode] + [stage.episodes])
                 self.trainer.train(episodes=stop - episode)
                 episode = self.trainer.episode
@@ -410,11 +466,10 @@ class _Run:
         self.episodes += stage.episodes
         self.cpu_seconds += _progress(where / "latest.pt")["cpu_seconds"]
 
-    def log(self, stage: Stage, line: str) -> None:
+    def log(self, index: int, line: str) -> None:
         trainer = self.trainer
-        budget = "" if trainer is None else " | " + self.budget(self.episodes + trainer.episode,
-                                                               self.cpu_seconds + trainer.learner.cpu_seconds)
-        self.echo(f"{stage.name}: {line}{budget}")
+        budget = "" if trainer is None else " | " + self.budget(index, trainer.episode, trainer.learner.cpu_seconds)
+        self.echo(f"{self.recipe.stages[index].name}: {line}{budget}")
 
     def snapshot_file(self, stage: Stage, episode: int) -> Path:
         return self.run_dir / stage.name / "snapshots" / f"episode{episode:05d}.pt"
@@ -456,7 +511,7 @@ class _Run:
         sampled = scores[chosen]["food_by_team"]
         less = {n: 1 - empty["food_by_team"][n] / sampled[n] if sampled[n] else 0.0 for n in sampled}
         _write_json(self.run_dir / "selection.json", {
-            "rule": SELECTION_RULE, "validation": asdict(v) | {"scenarios_dir": str(folder / "scenarios")},
+            "rule": SELECTION_RULE, "validation": _trained(v) | {"scenarios_dir": str(folder / "scenarios")},
             "candidates": scores, "chosen": chosen, "model": str(model),
             "channel_empty": empty | {"less_by_team": less},
             "episodes": self.recipe.episodes, "cpu_hours": self.cpu_seconds / 3600})
@@ -466,7 +521,7 @@ class _Run:
                   "sampling): agents / food / channel empty / less")
         for n in sampled:
             self.echo(f"  {n:4d}  {sampled[n]:8.1f}  {empty['food_by_team'][n]:8.1f}  {less[n]:5.0%}")
-        self.echo(self.budget(self.recipe.episodes, self.cpu_seconds))
+        self.echo(self.budget(len(self.recipe.stages)))
         return model
 
     def trains_with_pheromones(self) -> bool:
@@ -501,7 +556,7 @@ def play_validation(matrix: dict, model: Path, out: Path, no_pheromones: bool = 
     and the episodes' CPU seconds."""
     from formic_eval import PolicyOptions, evaluate
     from formic_eval.matrix import file_digest
-    from formic_eval.runner import EpisodeLog
+    from formic_eval.runner import folder_episodes
 
     options = PolicyOptions(model=str(model), model_digest=file_digest(model), no_pheromones=no_pheromones)
     summary = evaluate(matrix, ["formic"], options, out, workers=workers, source=str(out.parent / "scenarios"))
@@ -512,4 +567,4 @@ def play_validation(matrix: dict, model: Path, out: Path, no_pheromones: bool = 
     return {"file": str(model), "digest": options.model_digest, "episodes": n,
             "food_mean": sum(c["n"] * c["food_mean"] for c in cells) / n,
             "food_by_team": {c["agents"]: c["food_mean"] for c in cells},
-            "cpu_seconds": sum(record["wall_s"] for record in EpisodeLog(out / "episodes.jsonl").load().values())}
+            "cpu_seconds": sum(record["wall_s"] for record in folder_episodes(out))}
