@@ -33,7 +33,8 @@ ROOT = Path(__file__).resolve().parents[1]
 def recipe_settings(stage: str | None, switch: str = "") -> dict:
     """A recipe stage's full training configuration (this tree's recipe, with ``switch`` if
     given), as a plain dict."""
-    from formic_trainer.recipe import load_recipe, stage_config
+    from formic_trainer.recipes.definition import stage_config
+    from formic_trainer.recipes.files import load_recipe
 
     recipe = load_recipe("paper", switch)
     index = len(recipe.stages) - 1 if stage is None else [s.name for s in recipe.stages].index(stage)

@@ -28,7 +28,7 @@ from formic_agent.checkpoint import load_network, read_checkpoint  # noqa: E402
 from formic_eval.markdown_block import add_block_options, publish  # noqa: E402
 from formic_eval.matrix import file_digest  # noqa: E402
 from formic_trainer.config import PRESETS  # noqa: E402
-from formic_trainer.recipe import held_identity  # noqa: E402
+from formic_trainer.recipes.files import held_identity  # noqa: E402
 
 
 def markers(run: Path) -> tuple[str, str]:

@@ -18,7 +18,8 @@ from pathlib import Path
 import click
 
 from formic_runtime.threads import configure_threads
-from formic_trainer.recipe import Validation, play_validation, validation_matrix
+from formic_trainer.recipes.definition import Validation
+from formic_trainer.recipes.validation import play_validation, validation_matrix
 
 
 def run_identity(run_dir: Path) -> dict:

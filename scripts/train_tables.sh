@@ -18,7 +18,7 @@ RECIPE=${RECIPE:-paper} SCALE=${SCALE:-0.5} SEED=${SEED:-1}
 FORMIC=${FORMIC:-.venv/bin/formic}
 SWITCHES=$(.venv/bin/python - "$RECIPE" <<'EOF'
 import sys
-from formic_trainer.recipe import load_recipe
+from formic_trainer.recipes.files import load_recipe
 print(*load_recipe(sys.argv[1]).switches)
 EOF
 )

@@ -295,3 +295,31 @@ def test_view_wait_without_the_view_is_a_usage_error(command):
     """--view-wait waits for a viewer of --view: alone it would silently wait for nothing."""
     result = formic(*command, *TINY_WORLD, "--view-wait")
     assert result.exit_code == 2 and "--view-wait waits for a viewer of the live view: add --view" in result.output
+
+
+def test_robot_options_of_formic_run_are_checked_before_any_process_starts():
+    usage = formic("run", *TINY_WORLD, "--robots", "2", "--robot-odom-origin", "east")
+    assert usage.exit_code == 2 and usage.stderr.splitlines()[-1] == (
+        "Error: Invalid value for --robot-odom-origin: odometry origin 'east': use map, start or X,Y,YAW "
+        "(metres, radians)")
+    assert_one_line_error(formic("run", *TINY_WORLD, "--robots", "1", "--robots-sim", "--robot-odom-origin", "start"),
+                          "--robot-odom-origin is for real robots: the simulated robots' odometry is in the map frame")
+    assert_one_line_error(formic("run", *TINY_WORLD, "--robots", "1", "--robot-cmd-vel", "/r{agent_id}/cmd_vel"),
+                          "robot topic '/r{agent_id}/cmd_vel': the only field is {id} (the agent id)")
+
+
+def test_scenarios_starts_prints_each_robots_start_cell_and_its_centre():
+    result = formic("scenarios", "starts", "--agents", "8", "--size", "24", "--seed", "0", "--robots", "3,5",
+                    "--cell-size", "0.5")
+    assert result.exit_code == 0, result.output
+    assert result.stdout.splitlines() == [
+        "seed 0, 24x24, 0.5 m cells; x, y: the cell's centre in the map frame (m), facing east (yaw 0)",
+        "agent   3: cell (13, 12) at x 6.250, y 5.250",
+        "agent   5: cell (10, 13) at x 6.750, y 6.750",
+    ]
+    scenario = generate_scenario(WorldConfig(height=24, width=24, n_agents=8, episode_steps=512), 0)
+    starts = json.loads(formic("scenarios", "starts", "--agents", "8", "--size", "24", "--seed", "0",
+                               "--json").stdout)["starts"]
+    assert [(s["row"], s["col"]) for s in starts] == [(int(a.row), int(a.col)) for a in scenario.agents]
+    assert_one_line_error(formic("scenarios", "starts", "--agents", "8", "--robots", "9"),
+                          "--robots [9]: not agents of this team of 8")

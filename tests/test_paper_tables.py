@@ -40,7 +40,7 @@ def run_tables(*args: str) -> subprocess.CompletedProcess:
 
 
 def test_every_row_of_the_three_tables_is_a_recipe_switch():
-    from formic_trainer.recipe import load_recipe
+    from formic_trainer.recipes.files import load_recipe
 
     switches = set(load_recipe("paper").switches)
     assert {row.switch for row in ROWS} - {"reference"} <= switches

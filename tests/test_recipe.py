@@ -21,7 +21,10 @@ from formic_eval.matrix import file_digest, layout_seed
 from formic_eval.runner import folder_episodes
 from formic_trainer.actor import filter_probability
 from formic_trainer.config import load_train_config
-from formic_trainer.recipe import SELECTION_RULE, cpu_seconds_left, load_recipe, run_recipe, stage_config, weights_file
+from formic_trainer.recipes.definition import stage_config, weights_file
+from formic_trainer.recipes.files import load_recipe
+from formic_trainer.recipes.run import cpu_seconds_left, run_recipe
+from formic_trainer.recipes.validation import SELECTION_RULE
 
 ROOT = Path(__file__).resolve().parents[1]
 SMOKE = load_recipe("smoke")
@@ -257,21 +260,21 @@ def test_a_run_resumes_across_comment_edits_but_not_across_switches(tmp_path):
     """The claim holds what the run trains (its identity), so editing comments, the budget or
     other switches keeps a run resumable; another switch is another run. Claims written before
     identities existed (the recipe's text only) still resume."""
-    from formic_trainer.recipe import _Run
+    from formic_trainer.recipes.run import RecipeRun
 
     edited = tmp_path / "edited.toml"
     edited.write_text("# a new comment\n" + SMOKE_TEXT.replace("budget_cpu_hours = 0.01", "budget_cpu_hours = 0.02"))
-    _Run(load_recipe("smoke"), tmp_path / "run", 1, print)
-    _Run(load_recipe(str(edited)), tmp_path / "run", 1, print)  # accepted
+    RecipeRun(load_recipe("smoke"), tmp_path / "run", 1, print)
+    RecipeRun(load_recipe(str(edited)), tmp_path / "run", 1, print)  # accepted
     with pytest.raises(Exception, match="another recipe, switch, scale or seed"):
-        _Run(load_recipe("smoke", "blind"), tmp_path / "run", 1, print)
+        RecipeRun(load_recipe("smoke", "blind"), tmp_path / "run", 1, print)
     legacy = tmp_path / "legacy"
     legacy.mkdir()
     (legacy / "recipe.json").write_text(json.dumps({"recipe": str(ROOT / "recipes" / "smoke.toml"), "seed": 1,
                                                     "text": SMOKE_TEXT}))
-    _Run(load_recipe(str(edited)), legacy, 1, print)
+    RecipeRun(load_recipe(str(edited)), legacy, 1, print)
     with pytest.raises(Exception, match="another recipe, switch, scale or seed"):
-        _Run(load_recipe("smoke", "all-learn"), legacy, 1, print)
+        RecipeRun(load_recipe("smoke", "all-learn"), legacy, 1, print)
 
 
 def test_a_run_resumes_on_another_thread_count_and_validates_in_as_many_processes(tmp_path):
@@ -457,7 +460,7 @@ def test_the_time_left_is_each_stages_measured_cost_after_eight_episodes_else_it
     """Stages of 10, 4 and 4 episodes at 10, 20 and 30 CPU-s planned; the validation plays 2
     episodes (2 team sizes x 1 scenario) for each of 2 candidates and once more with the channel
     empty: 6 x 5 = 30 CPU-s."""
-    from formic_trainer.recipe import _Run
+    from formic_trainer.recipes.run import RecipeRun
 
     recipe = load_recipe(str(costed_smoke(tmp_path)))
     assert [s.cost for s in recipe.stages] == [10.0, 20.0, 30.0] and recipe.validation.cost == 5.0
@@ -469,11 +472,11 @@ def test_the_time_left_is_each_stages_measured_cost_after_eight_episodes_else_it
     assert cpu_seconds_left(recipe, 3) == 30 and cpu_seconds_left(recipe, 3, validated=True) == 0
     assert cpu_seconds_left(recipe, 3, with_pheromones=False) == 20  # no channel-empty replay
     assert cpu_seconds_left(SMOKE, 0) is None  # no planned costs: no time left shown
-    run = _Run(recipe, tmp_path / "run", 1, print)
+    run = RecipeRun(recipe, tmp_path / "run", 1, print)
     run.episodes, run.cpu_seconds = 10, 720.0  # the first stage done
     assert run.budget(1, 2, 1440.0) == "recipe 12/18 episodes, 0.60/0.0 CPU-h (over budget), ~0.1 CPU-h left"
     assert run.budget(3) == "recipe 10/18 episodes, 0.20/0.0 CPU-h (over budget), ~0.0 CPU-h left"
-    assert _Run(SMOKE, tmp_path / "plain", 1, print).budget(0, 2, 36.0) == "recipe 2/12 episodes, 0.01/0.0 CPU-h"
+    assert RecipeRun(SMOKE, tmp_path / "plain", 1, print).budget(0, 2, 36.0) == "recipe 2/12 episodes, 0.01/0.0 CPU-h"
 
 
 def test_planned_costs_are_not_part_of_a_runs_identity(tmp_path):
@@ -484,23 +487,26 @@ def test_planned_costs_are_not_part_of_a_runs_identity(tmp_path):
     import shutil
     import tomllib
 
-    from formic_trainer.recipe import _parse, _Run, held_identity
+    from formic_trainer.recipes.files import held_identity
+    from formic_trainer.recipes.parse import parse_recipe
+    from formic_trainer.recipes.run import RecipeRun
 
     costed = load_recipe(str(costed_smoke(tmp_path)))
     without = tmp_path / "without.toml"
     without.write_text(re.sub(r"(?m)^cost = .*\n", "", costed.text))
     assert load_recipe(str(without)).identity == costed.identity
-    _Run(load_recipe(str(without)), tmp_path / "run", 1, print)
-    _Run(costed, tmp_path / "run", 1, print)  # accepted
+    RecipeRun(load_recipe(str(without)), tmp_path / "run", 1, print)
+    RecipeRun(costed, tmp_path / "run", 1, print)  # accepted
     for name in ("paper", "paper-v2"):
         recipe = load_recipe(name)
         assert all(stage.cost for stage in recipe.stages) and recipe.validation.cost == 6.0
         bare = re.sub(r"(?m)^cost = .*\n", "", recipe.text)
-        assert bare != recipe.text and _parse(tomllib.loads(bare), recipe.source, bare).identity == recipe.identity
+        assert bare != recipe.text
+        assert parse_recipe(tomllib.loads(bare), recipe.source, bare).identity == recipe.identity
     claim = ROOT / "models" / "training" / "recipe-paper" / "seed1" / "recipe.json"
     held = json.loads(claim.read_text())
     assert "identity" not in held and "cost =" not in held["text"]
     assert held_identity(held) == load_recipe("paper").identity
     (tmp_path / "seed1").mkdir()
     shutil.copy(claim, tmp_path / "seed1" / "recipe.json")
-    _Run(load_recipe("paper"), tmp_path / "seed1", 1, print)  # accepted
+    RecipeRun(load_recipe("paper"), tmp_path / "seed1", 1, print)  # accepted

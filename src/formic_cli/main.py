@@ -277,7 +277,8 @@ def _train_recipe(ctx: click.Context, recipe: str | None, seed: int | None, swit
     """`formic train --recipe`: the recipe sets every stage, so the single-run options are refused."""
     from click.core import ParameterSource
 
-    from formic_trainer.recipe import load_recipe, run_recipe
+    from formic_trainer.recipes.files import load_recipe
+    from formic_trainer.recipes.run import run_recipe
 
     single_run = {"preset": "--preset", "episodes": "--episodes", "minutes": "--minutes", "fresh": "--fresh",
                   "overrides": "--set", "export": "--export"}
@@ -292,7 +293,8 @@ def _train_recipe(ctx: click.Context, recipe: str | None, seed: int | None, swit
 
 def _register_optional() -> None:
     """Commands from packages that may be absent in a partial install (e.g. no ROS)."""
-    for module in ("formic_cli.eval_commands", "formic_cli.ros_commands", "formic_cli.ros_record_commands"):
+    for module in ("formic_cli.eval_commands", "formic_cli.ros_commands", "formic_cli.ros_record_commands",
+                   "formic_cli.actor_commands"):
         try:
             mod = __import__(module, fromlist=["register"])
         except ImportError as exc:

@@ -1,16 +1,17 @@
 """Robot commands (docs/robots.md): ``formic robot`` (bridges between robot agents and robots),
-``formic robots-sim`` (simulated robots), and the robot options of ``formic run`` and
-``formic world``. Registered by :mod:`formic_cli.ros_commands`."""
+``formic robots-sim`` (simulated robots), ``formic scenarios starts`` (where to put the robots
+before a run), and the robot options of ``formic run`` and ``formic world``. Registered by :mod:`formic_cli.ros_commands`."""
 
 from __future__ import annotations
 
 import click
 
-from .options import hosts_network_option, greedy_option, model_option, option_group, ros_options
-from .summary import click_errors
+from .options import (greedy_option, hosts_network_option, json_option, model_option, option_group, ros_options,
+                      scenario_from, world_options)
+from .summary import click_errors, emit_json
 
-DEFAULT_CMD_VEL = "/robot_{agent}/cmd_vel"
-DEFAULT_ODOM = "/robot_{agent}/odom"
+from formic_ros.robots.settings import (CMD_VEL as DEFAULT_CMD_VEL, MAX_SPEED, MAX_TURN, ODOM as DEFAULT_ODOM,
+                                        ROBOT_CELL_S as CELL_S, ROBOT_TOLERANCE as TOLERANCE, STALL_S)
 
 
 def _ids(ctx, param, text: str | None) -> tuple[int, ...]:
@@ -26,9 +27,9 @@ def _ids(ctx, param, text: str | None) -> tuple[int, ...]:
 world_robot_options = option_group(
     click.option("--robots", callback=_ids,
                  help="Robot agents, e.g. 28-31: each step is committed when they have reached their cells."),
-    click.option("--robot-tolerance", default=0.1, show_default=True,
+    click.option("--robot-tolerance", default=TOLERANCE, show_default=True,
                  help="Metres from a cell's centre that count as a robot being in the cell."),
-    click.option("--robot-cell-s", default=10.0, show_default=True,
+    click.option("--robot-cell-s", default=CELL_S, show_default=True,
                  help="Seconds a robot gets per cell of a move before the move counts as failed."),
 )
 
@@ -37,10 +38,19 @@ run_robot_options = option_group(
     world_robot_options,
     click.option("--robots-sim", is_flag=True, help="Simulate the robots (formic robots-sim) instead of real ones."),
     click.option("--cell-size", default=1.0, show_default=True, help="Metres a grid cell (the map frame)."),
-    click.option("--robot-max-speed", default=0.5, show_default=True,
+    click.option("--robot-max-speed", default=MAX_SPEED, show_default=True,
                  help="Robots' top speed, m/s (formic robot's and robots-sim's --max-speed)."),
-    click.option("--robot-max-turn", default=2.5, show_default=True,
+    click.option("--robot-max-turn", default=MAX_TURN, show_default=True,
                  help="Robots' top turn rate, rad/s (formic robot's and robots-sim's --max-turn)."),
+    click.option("--robot-stall-s", default=STALL_S, show_default=True,
+                 help="No progress for this long: the bridge reports the move failed (formic robot's --stall-s)."),
+    click.option("--robot-cmd-vel", default="/robot_{id}/cmd_vel", show_default=True,
+                 help="Each robot's geometry_msgs/Twist topic ({id}: the agent id; formic robot's --cmd-vel)."),
+    click.option("--robot-odom", default="/robot_{id}/odom", show_default=True,
+                 help="Each robot's nav_msgs/Odometry topic ({id}: the agent id; formic robot's --odom)."),
+    click.option("--robot-odom-origin", default="map", show_default=True,
+                 help="Where the odometry frame lies in the map: map, start or X,Y,YAW (formic robot's "
+                      "--odom-origin; real robots only)."),
     click.option("--robot-stall-rate", default=0.0, show_default=True,
                  help="Simulated robots: stalls per second of driving (moves then fail)."),
 )
@@ -49,7 +59,7 @@ run_robot_options = option_group(
 def robot_run_options(fields: dict):
     """Pop ``run_robot_options`` out of a command's kwargs: a RobotRunOptions, or None without --robots."""
     robots, simulate = fields.pop("robots"), fields.pop("robots_sim")
-    names = ("tolerance", "cell_s", "max_speed", "max_turn", "stall_rate")
+    names = ("tolerance", "cell_s", "max_speed", "max_turn", "stall_s", "cmd_vel", "odom", "odom_origin", "stall_rate")
     settings = {name: fields.pop(f"robot_{name}") for name in names}
     cell_size = fields.pop("cell_size")
     if not robots:
@@ -57,7 +67,12 @@ def robot_run_options(fields: dict):
             raise click.UsageError("--robots-sim needs --robots")
         return None
     from formic_ros.launch.robots import RobotRunOptions
+    from formic_ros.robots.bridge import parse_origin
 
+    try:
+        parse_origin(settings["odom_origin"])
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="--robot-odom-origin") from exc
     return RobotRunOptions(agents=robots, simulate=simulate, cell_size=cell_size, seed=fields["seed"], **settings)
 
 
@@ -78,24 +93,22 @@ def robot_run_options(fields: dict):
 @click.option("--odom-origin", default="map", show_default=True,
               help="Where the pose's frame lies in the map: map (it is the map frame), start (the robot was switched "
                    "on at its start cell's centre facing east), or X,Y,YAW.")
-@click.option("--max-speed", default=0.5, show_default=True, help="Top speed the bridge commands, m/s.")
-@click.option("--max-turn", default=2.0, show_default=True, help="Top turn rate the bridge commands, rad/s.")
-@click.option("--stall-s", default=3.0, show_default=True,
+@click.option("--max-speed", default=MAX_SPEED, show_default=True, help="Top speed the bridge commands, m/s.")
+@click.option("--max-turn", default=MAX_TURN, show_default=True, help="Top turn rate the bridge commands, rad/s.")
+@click.option("--stall-s", default=STALL_S, show_default=True,
               help="No progress for this long: the move fails (blocked).")
 @ros_options()
 @click.option("--once", is_flag=True, help="Exit when the episode ends.")
 def robot(agents, policy, model, greedy, cmd_vel, odom, pose, odom_origin, max_speed, max_turn, stall_s, namespace,
           domain_id, once) -> None:
     """Robot bridge: a robot agent's decisions to cmd_vel, the robot's odometry back to its cell."""
-    from formic_robots.controller import ControllerSettings
     from formic_ros.errors import WorldLost
     from formic_ros.robots.bridge import parse_origin, serve_robots
-    from formic_ros.robots.settings import BridgeSettings
+    from formic_ros.robots.settings import BridgeSettings, controller_settings
 
     with click_errors(ValueError, FileNotFoundError, WorldLost, interrupted=""):
         parse_origin(odom_origin)
-        controller = ControllerSettings(max_linear=max_speed, max_angular=max_turn, linear_decel=max_speed,
-                                        angular_decel=2 * max_turn)
+        controller = controller_settings(max_speed, max_turn)
         settings = BridgeSettings(cmd_vel=cmd_vel, odom=odom, pose=pose, odom_origin=odom_origin, stall_s=stall_s,
                                   controller=controller)
         serve_robots(list(agents), policy, settings, namespace=namespace, model=model, greedy=greedy, once=once,
@@ -108,8 +121,8 @@ def robot(agents, policy, model, greedy, cmd_vel, odom, pose, odom_origin, max_s
 @click.option("--cell-size", default=1.0, show_default=True, help="Metres a cell: the world's --cell-size.")
 @click.option("--origin-x", default=0.0, show_default=True, help="The world's --origin-x.")
 @click.option("--origin-y", default=0.0, show_default=True, help="The world's --origin-y.")
-@click.option("--max-speed", default=0.5, show_default=True, help="m/s")
-@click.option("--max-turn", default=2.5, show_default=True, help="rad/s")
+@click.option("--max-speed", default=MAX_SPEED, show_default=True, help="m/s")
+@click.option("--max-turn", default=MAX_TURN, show_default=True, help="rad/s")
 @click.option("--accel", default=1.0, show_default=True, help="m/s^2 (turning: 5x in rad/s^2)")
 @click.option("--noise", default=0.05, show_default=True, help="Slip: std. dev. of executed/commanded velocity.")
 @click.option("--stall-rate", default=0.0, show_default=True, help="Stalls per second of driving.")
@@ -132,3 +145,38 @@ def robots_sim(agents, cell_size, origin_x, origin_y, max_speed, max_turn, accel
         settings = SimSettings(cmd_vel=cmd_vel, odom=odom, cell_size=cell_size, origin=(origin_x, origin_y),
                                limits=limits, seed=seed)
         serve_robots_sim(list(agents), settings, namespace=namespace, once=once, domain_id=domain_id)
+
+
+@click.command("starts")
+@world_options
+@click.option("--scenario", "scenario_file", type=click.Path(exists=True, dir_okay=False),
+              help="A stored scenario (its configuration wins over world options).")
+@click.option("--robots", callback=_ids, help="Only these agents, e.g. 28-31.")
+@click.option("--cell-size", default=1.0, show_default=True, help="Metres a cell: the run's --cell-size.")
+@click.option("--origin-x", default=0.0, show_default=True, help="Map x of the grid's south-west corner (m).")
+@click.option("--origin-y", default=0.0, show_default=True, help="Map y of the grid's south-west corner (m).")
+@json_option()
+def scenarios_starts(scenario_file, robots, cell_size, origin_x, origin_y, as_json, **world_kw) -> None:
+    """Each agent's start cell and its centre in the map frame: where to put a robot before a run
+    of this scenario (or of these world options: --seed, --size, --agents, ...)."""
+    from formic_world.metric_frame import MetricFrame
+
+    scenario = scenario_from(scenario_file, world_kw)
+    cfg = scenario.config
+    frame = MetricFrame(cfg.height, cfg.width, cell_size, origin_x, origin_y)
+    with click_errors(ValueError):
+        outside = [a for a in robots if not 0 <= a < cfg.n_agents]
+        if outside:
+            raise ValueError(f"--robots {outside}: not agents of this team of {cfg.n_agents}")
+    rows = []
+    for a in robots or range(cfg.n_agents):
+        start = scenario.agents[a]
+        x, y = frame.cell_centre(start.row, start.col)
+        rows.append({"agent": a, "row": int(start.row), "col": int(start.col), "x": x, "y": y})
+    if as_json:
+        emit_json({"seed": scenario.seed, "size": [cfg.height, cfg.width], "cell_size": cell_size, "starts": rows})
+        return
+    click.echo(f"seed {scenario.seed}, {cfg.height}x{cfg.width}, {cell_size:g} m cells; x, y: the cell's centre "
+               "in the map frame (m), facing east (yaw 0)")
+    for row in rows:
+        click.echo(f"agent {row['agent']:3d}: cell ({row['row']}, {row['col']}) at x {row['x']:.3f}, y {row['y']:.3f}")

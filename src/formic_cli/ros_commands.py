@@ -13,7 +13,8 @@ from .options import (WORLD_OPTION_NAMES, domain_option, fresh_option, greedy_op
                       json_option, live_view_port, model_option, option_group, preset_option, ros_options,
                       ros_run_dir_option, scenario_from, team_options, train_config_option, training_config,
                       view_options, world_options)
-from .robot_commands import robot, robot_run_options, robots_sim, run_robot_options, world_robot_options
+from .robot_commands import (robot, robot_run_options, robots_sim, run_robot_options, scenarios_starts,
+                             world_robot_options)
 from .summary import click_errors, emit, emit_json, print_episode_summary
 
 TRANSPORT = click.Choice(["per-agent", "batched"])
@@ -46,14 +47,20 @@ launch_options = option_group(
 )
 
 
+def _counts(counts: dict) -> str:
+    return ", ".join(f"{k} {v}" for k, v in counts.items()) if counts else "0"
+
+
 def _print_ros_summary(summary: dict) -> None:
     print_episode_summary(summary)
-    rejected = summary.get("rejected_actions", {})
     click.echo(
         f"ROS: {summary['mode']}, {summary['steps_per_s']:.0f} steps/s after a {summary['startup_s']:.1f} s start; "
-        f"missed actions {summary['missed_actions']}; rejected actions "
-        + (", ".join(f"{k} {v}" for k, v in rejected.items()) if rejected else "0")
+        f"missed actions {summary['missed_actions']}; rejected actions {_counts(summary.get('rejected_actions', {}))}"
     )
+    if "robots" in summary:  # the world's robot figures (docs/robots.md)
+        click.echo(f"robots {summary['robots']}: a step took {summary['robot_step_s_mean']:.2f} s on average, "
+                   f"{summary['robot_step_s_max']:.2f} s at most; failed moves {summary['robot_failed_moves']}; "
+                   f"rejected statuses {_counts(summary.get('rejected_statuses', {}))}")
     click.echo(f"state digest {summary['state_digest']}")
 
 
@@ -137,7 +144,8 @@ def run(scenario_file, external, live_view, view_port, view_wait, as_json, **fie
 @click.option("--origin-x", default=0.0, show_default=True, help="Map x of the grid's south-west corner (m).")
 @click.option("--origin-y", default=0.0, show_default=True, help="Map y of the grid's south-west corner (m).")
 @click.option("--allow-empty", is_flag=True,
-              help="Step through the episode even when no agent answers step 0 (default: exit with an error).")
+              help="Step through the episode even when agents do not answer step 0 (default: exit with an error "
+                   "naming them).")
 @click.option("--train-config", type=click.Path(exists=True, dir_okay=False),
               help="Training mode: play --episodes episodes on scenarios drawn as `formic train` draws them "
                    "for this training configuration (a run directory's config.json); world options are ignored.")
@@ -230,11 +238,13 @@ def agents(ids, policy, model, greedy, transport, namespace, domain_id, name, th
 @fresh_option
 @click.option("--switch-weights", "switch", type=SWITCH, default="chunk", show_default=True,
               help="Hosts wait for each rollout's update (as `formic train`), or take new weights per episode.")
+@click.option("--actors", type=click.IntRange(min=1), default=1, show_default=True,
+              help="Actors (a world and its learning host each), one per world of the config; >1: docs/ros.md.")
 @lockstep_options(deadline_ms=120000.0, startup_timeout=120.0, viewer_every=0, rate=False,
                   deadline_help="Lockstep deadline; a step can wait for an update, so it is long.")
 @launch_options
 @json_option(help="Print one JSON object at the end.")
-def train_ros(preset, train_config, overrides, as_json, **options) -> None:
+def train_ros(preset, train_config, overrides, as_json, actors, **options) -> None:
     """Distributed training: trainer node, world (training scenarios) and a learning host as
     separate ROS processes; same settings and seeds give `formic train`'s learning curve."""
     from formic_ros.launch.launcher import TrainRunOptions, launch_training
@@ -242,8 +252,13 @@ def train_ros(preset, train_config, overrides, as_json, **options) -> None:
     with click_errors(RuntimeError, ValueError, TypeError, FileNotFoundError,
                       interrupted="interrupted: every process stopped (the trainer saved its checkpoint)"):
         cfg = training_config(preset, train_config, overrides)
-        result = launch_training(TrainRunOptions(config=cfg, **options,
-                                                 on_episode=None if as_json else _print_training_episode))
+        run_options = TrainRunOptions(config=cfg, **options, on_episode=None if as_json else _print_training_episode)
+        if actors > 1:
+            from formic_ros.launch.actors import launch_actors_training
+
+            result = launch_actors_training(run_options, actors)
+        else:
+            result = launch_training(run_options)
     trainer = result["trainer"]
     emit(as_json, result, f"trained {len(result['episodes'])} episodes from episode "
          f"{result['first_episode']}: weights version {trainer['version']} ({trainer['dropped']} rollouts "
@@ -296,3 +311,6 @@ def register(cli: click.Group) -> None:
     bench = cli.commands.get("bench")
     if isinstance(bench, click.Group):
         bench.add_command(bench_ros)
+    scenarios = cli.commands.get("scenarios")
+    if isinstance(scenarios, click.Group):
+        scenarios.add_command(scenarios_starts)

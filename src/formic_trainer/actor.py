@@ -4,7 +4,10 @@ One LSTM state per agent, a torch sampler and a numpy stream of its own (the epi
 unfiltered agents under filter annealing, the "replace" filter's replacements), seeded anew
 from the global episode number at every episode start (:func:`actor_streams`), so a resumed
 run acts exactly as an uninterrupted one, and one rollout buffer for its
-learning agents. Per episode :meth:`Actor.start_episode`; per step :meth:`Actor.act`, then
+learning agents. The sampler and the annealing draws are team-wide (:func:`team_draws`): an
+actor over some of the agents draws for every agent of the meta-agent worlds and keeps its
+rows, so actors that split the agents between them sample what one actor over all of them
+would (``formic train-ros --actors K``). Per episode :meth:`Actor.start_episode`; per step :meth:`Actor.act`, then
 :meth:`Actor.reward`; at a chunk's end :meth:`Actor.rollout`: the :class:`Rollout` the learner
 takes as it is. ``formic train`` runs one over all its worlds' agents, a ROS learning host one
 over its agents.
@@ -16,6 +19,7 @@ import numpy as np
 import torch
 
 from formic_agent.network import ForMICNet
+from formic_world.geometry import N_ACTIONS
 
 from .algorithm import sampling_mask
 from .config import TrainConfig
@@ -67,16 +71,25 @@ def filter_probability(cfg: TrainConfig, episode: int) -> float:
     return initial + fraction * (cfg.filter_final - initial)
 
 
+def team_draws(generator: torch.Generator, team: int, rows: np.ndarray) -> torch.Tensor:
+    """Exp(1) draws for every action of a team of ``team`` agents, rows ``rows`` of them: a
+    sample is the argmax of probability over draw, as ``torch.multinomial`` takes one sample
+    (same generator, same draws, same actions: tested), whichever agents an actor holds."""
+    return torch.empty(team, N_ACTIONS).exponential_(generator=generator)[torch.from_numpy(rows)]
+
+
 def select_actions(cfg: TrainConfig, logits: torch.Tensor, train_mask: np.ndarray, generator: torch.Generator,
-                   rng: np.random.Generator,
-                   sample_mask: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                   rng: np.random.Generator, sample_mask: np.ndarray | None = None,
+                   team_rows: tuple[int, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Sample actions under the training filter. Returns (actions, log-probs, value_mask: False
     where the "replace" filter replaced the action). In "mask" mode ``sample_mask`` (default:
-    ``sampling_mask``) says what may be sampled."""
+    ``sampling_mask``) says what may be sampled. ``team_rows``: (team size, the rows' team-wide
+    ids) for team-wide draws (default: the rows are the team)."""
     if cfg.action_filter == "mask":
         allowed = sampling_mask(cfg, train_mask) if sample_mask is None else sample_mask
         logits = logits.masked_fill(~torch.from_numpy(allowed), -1e9)
-    actions = torch.multinomial(torch.softmax(logits, -1), 1, generator=generator)[:, 0].numpy().copy()
+    team, rows = team_rows or (len(logits), np.arange(len(logits)))
+    actions = torch.argmax(torch.softmax(logits, -1) / team_draws(generator, team, rows), -1).numpy().copy()
     value_mask = np.ones(len(actions), dtype=bool)
     if cfg.action_filter == "replace":  # invalid samples are replaced by a random valid action
         rows = np.arange(len(actions))
@@ -96,10 +109,15 @@ class Actor:
         self.chunk_version = weights_version  # the weights that act in the current chunk
         self.ids = np.asarray(agent_ids, dtype=np.int64)
         self.learning = learning_rows(cfg, self.ids)
+        self.team = sum(cfg.teams)  # the draws are team-wide (team_draws)
+        if len(self.ids) and (self.ids.min() < 0 or self.ids.max() >= self.team):
+            raise ValueError(f"agents {self.ids.tolist()} are not all in the team of {self.team} (teams={cfg.teams})")
+        self.whole_team = np.array_equal(self.ids, np.arange(self.team))
         self.first_agent = int(self.ids[0]) if len(self.ids) else 0
         self.episode = 0
         self.generator: torch.Generator | None = None  # the episode's streams: set by start_episode
         self.rng: np.random.Generator | None = None
+        self.replace_rng: np.random.Generator | None = None  # the "replace" filter's
         self.unfiltered = np.zeros(len(self.ids), dtype=bool)
         self.state = net.initial_state(len(self.ids))
         self.valid_rate: list[float] = []  # per step: share of free agents whose action was valid
@@ -113,8 +131,11 @@ class Actor:
         """A new episode (global number ``episode``): fresh LSTM states, and which agents act
         unfiltered in it (filter annealing), and the episode's own random streams."""
         self.episode = episode
-        self.generator, self.rng = actor_streams(self.cfg, episode, self.first_agent)
-        self.unfiltered = self.rng.random(len(self.ids)) >= filter_probability(self.cfg, episode)
+        self.generator, self.rng = actor_streams(self.cfg, episode)
+        self.unfiltered = self.rng.random(self.team)[self.ids] >= filter_probability(self.cfg, episode)
+        # the replacements follow in team order, which no split reproduces: a part of the team
+        # draws them from a stream of its own
+        self.replace_rng = self.rng if self.whole_team else actor_streams(self.cfg, episode, self.first_agent)[1]
         self.state = self.net.initial_state(len(self.ids))
         self.valid_rate = []
         self._new_chunk()
@@ -136,7 +157,8 @@ class Actor:
         allowed = sampling_mask(self.cfg, frame.train_mask)
         allowed[self.unfiltered] = True
         actions, logprobs, value_mask = select_actions(self.cfg, logits[0], frame.train_mask, self.generator,
-                                                       self.rng, sample_mask=allowed)
+                                                       self.replace_rng, sample_mask=allowed,
+                                                       team_rows=(self.team, self.ids))
         free = ~frame.queued
         self.valid_rate.append(float(frame.action_mask[free, actions[free]].mean()) if free.any() else 1.0)
         step = {"observations": frame.observations, "extra_inputs": frame.extra_inputs,

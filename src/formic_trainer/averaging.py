@@ -3,7 +3,7 @@
 A policy trained with every team size at once swings from one checkpoint to the next (the
 128-agent food most); the mean of the last few checkpoints of one run, whose weights lie in
 one basin, is steadier than any one of them. ``scripts/average_checkpoints.py`` and the
-recipes (:mod:`formic_trainer.recipe`) write it."""
+recipes (:mod:`formic_trainer.recipes.run`) write it."""
 
 from __future__ import annotations
 

@@ -23,6 +23,8 @@ class TrainConfig:
     """Every training setting, one line of help each; why the non-paper ones exist and what
     they measured: docs/training.md, "The settings"."""
 
+    # the preset these defaults are (PRESETS["paper"] is TrainConfig()); the commands' --preset defaults
+    # to "cpu", the one that trains on a CPU. Every saved config.json names its preset.
     preset: Literal["paper", "cpu"] = "paper"
     network: str = "paper"  # a NETWORK_PRESETS name
     seed: int = 0

@@ -4,7 +4,7 @@ names (``formic_ros.convert``). NumPy only, so the message codec needs no torch.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
@@ -40,3 +40,21 @@ class Rollout:
     @property
     def steps(self) -> int:
         return len(self.actions)
+
+
+AGENT_AXIS = {"agent_ids": 0, "next_value": 0}  # the other arrays are time-major (agents on axis 1)
+
+
+def join_rollouts(parts: list[Rollout]) -> Rollout:
+    """One rollout of several actors' chunks of the same steps, agents in team-wide id order:
+    the rollout one actor over all their agents would have made (``formic train`` makes one for
+    all its worlds). Scalars: the oldest weights and episode, done when any part is done, the
+    food summed."""
+    parts = sorted(parts, key=lambda part: int(part.agent_ids[0]))
+    arrays = {}
+    for field in fields(Rollout):
+        values = [getattr(part, field.name) for part in parts]
+        if isinstance(values[0], np.ndarray):
+            arrays[field.name] = np.concatenate(values, axis=AGENT_AXIS.get(field.name, 1))
+    return Rollout(weights_version=min(p.weights_version for p in parts), episode=min(p.episode for p in parts),
+                   done=any(p.done for p in parts), food=float(sum(p.food for p in parts)), **arrays)

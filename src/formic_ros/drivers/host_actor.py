@@ -55,7 +55,7 @@ class HostActor(Actor):
         """The next episode starts with ``batch`` (its step 0), in a world whose full load is
         ``load_full`` ticks."""
         self.start_episode(self.next_episode)
-        self.next_episode += 1
+        self.next_episode += len(self.cfg.teams)  # an episode set counts one episode per world, as in formic train
         self.feedback.reset(0)
         self.load_full, self.loads = load_full, batch.loads
         self.food = self.chunk_food_start = 0.0

@@ -56,12 +56,17 @@ class LearningHost(Node):
     acted computed, so the trainer's PPO ratio is taken against them; with one host the lag
     stays below the chunks per episode).
 
+    An actor's host (``formic train-ros --actors K``, ``formic actor``) serves world
+    ``world_index`` of the configuration's meta-agent worlds (its agents team-wide from that
+    world's first) in a namespace of its own, and takes weights from and sends rollouts to ``trainer_namespace``.
+
     An episode starts at step 0 of a scenario the host has not played yet: observations of a
     new episode that arrive before its (latched) scenario are held until it does.
     """
 
     def __init__(self, agent_ids: list[int], cfg: TrainConfig, switch: str = "chunk", first_episode: int = 0,
-                 namespace: str = topics.DEFAULT_NAMESPACE, name: str | None = None, torch_threads: int = 1):
+                 namespace: str = topics.DEFAULT_NAMESPACE, name: str | None = None, torch_threads: int = 1,
+                 world_index: int = 0, trainer_namespace: str | None = None):
         if switch not in SWITCH_MODES:
             raise ValueError(f"unknown weights switch {switch!r}; choose from {', '.join(SWITCH_MODES)}")
         torch.set_num_threads(torch_threads)
@@ -69,16 +74,19 @@ class LearningHost(Node):
         super().__init__(name or f"agent_host_{os.getpid()}", namespace=namespace)
         declare_settings(self, {"agent_ids": [int(a) for a in agent_ids], "switch": switch,
                                         "first_episode": first_episode, "torch_threads": torch_threads,
-                                        "train_config": cfg})
+                                        "train_config": cfg, "world_index": world_index})
         self.log = self.get_logger()
-        self.actor = HostActor(cfg, agent_ids, first_episode=first_episode)
-        self.ids = self.actor.ids
+        offset = sum(cfg.teams[:world_index])  # the world's agents' first team-wide id
+        self.actor = HostActor(cfg, [a + offset for a in agent_ids], first_episode=first_episode)
+        self.ids = self.actor.ids - offset  # the world's own ids
         self.create_subscription(ScenarioDescription, topics.SCENARIO, self._on_scenario, qos.LATCHED)
         self.create_subscription(ObservationBatch, topics.OBSERVATIONS, self._on_batch, qos.STREAM)
-        self.weights_sub = self.create_subscription(Weights, topics.WEIGHTS, self._on_weights, qos.LATCHED)
+        weights = topics.full_name(trainer_namespace or namespace, topics.WEIGHTS)  # an actor's host: its trainer's
+        self.weights_sub = self.create_subscription(Weights, weights, self._on_weights, qos.LATCHED)
         self.actions_pub = self.create_publisher(ActionBatch, f"~/{topics.ACTIONS}", qos.STREAM_WRITER)
         self.claim = Claim(self, list(self.ids), self.actions_pub.topic_name, publishers=[self.actions_pub])
-        self.rollouts_pub = self.create_publisher(RolloutMsg, topics.ROLLOUTS, qos.ROLLOUT)
+        self.rollouts_pub = self.create_publisher(RolloutMsg, topics.full_name(trainer_namespace or namespace,
+                                                                              topics.ROLLOUTS), qos.ROLLOUT)
         self.protocol = DriverProtocol(whole_episodes=True)
         self.scenario: Scenario | None = None  # the newest scenario
         self.horizon = -1  # its episode's steps (-1: none yet)
@@ -216,14 +224,15 @@ class LearningHost(Node):
 def serve_learning_agents(agent_ids: list[int], cfg: TrainConfig, switch: str = "chunk",
                           first_episode: int = 0, namespace: str = topics.DEFAULT_NAMESPACE,
                           name: str | None = None, episodes: int | None = None, domain_id: int | None = None,
-                          torch_threads: int = 1) -> int:
+                          torch_threads: int = 1, world_index: int = 0, trainer_namespace: str | None = None) -> int:
     """Host learning agents until interrupted (or until ``episodes`` episodes are played and
     their rollouts delivered, or the world is gone); returns the episodes played."""
     from ..env import ros_session
 
     with ros_session(domain_id) as executor:
         host = LearningHost(agent_ids, cfg, switch=switch, first_episode=first_episode, namespace=namespace,
-                            name=name, torch_threads=torch_threads)
+                            name=name, torch_threads=torch_threads, world_index=world_index,
+                            trainer_namespace=trainer_namespace)
         executor.add_node(host)
         watch = WorldWatch(host)
         with suppress(KeyboardInterrupt):

@@ -46,7 +46,8 @@ class TrainerNode(Node):
         super().__init__("trainer", namespace=namespace)
         declare_settings(self, settings_of(learner.cfg) | {"max_lag": max_lag, "run_dir": str(learner.run_dir)})
         self.learner, self.max_lag = learner, max_lag
-        self.received = self.updates = self.dropped = 0
+        self.received = self.updates = self.dropped = self.lost = 0  # lost: actors' rollouts never sent
+        self.episodes_per_end = 1  # episodes an ending rollout ends (actors: one per world)
         self.ended = -1  # the newest episode ended
         self.episode_food = 0.0  # of the rollouts since then
         self.weights_pub = self.create_publisher(Weights, topics.WEIGHTS, qos.LATCHED)
@@ -74,6 +75,10 @@ class TrainerNode(Node):
             self.drop(f"a rollout of weights version {rollout.weights_version}, now {self.learner.version} "
                       f"(learning from at most {self.max_lag} versions back)")
             return
+        self.learn_from(rollout, lag)
+
+    def learn_from(self, rollout, lag: int) -> None:
+        """One update from ``rollout`` (``lag`` versions old), the new weights, the log lines."""
         stats = self.learner.learn(rollout)
         self.updates += 1
         self.broadcast()
@@ -83,7 +88,7 @@ class TrainerNode(Node):
                 f"{rollout.episode}, lag {lag}, food {rollout.food:.1f}) loss {stats['loss']:.3f}")
         if rollout.done and rollout.episode > self.ended:  # several hosts: the first one's end counts
             self.ended = rollout.episode
-            self.learner.end_episodes(1, {"food_mean": self.episode_food})
+            self.learner.end_episodes(self.episodes_per_end, {"food_mean": self.episode_food / self.episodes_per_end})
             line += f"; episode food {self.episode_food:.1f}"
             self.episode_food = 0.0
         self.get_logger().info(line)
@@ -117,23 +122,30 @@ class TrainerNode(Node):
 
 def serve_trainer(cfg: TrainConfig, run_dir: Path, resume: bool = True, namespace: str = topics.DEFAULT_NAMESPACE,
                   domain_id: int | None = None, max_updates: int | None = None, max_rollouts: int | None = None,
-                  max_lag: int = DEFAULT_MAX_LAG, log: Callable[[str], None] = print) -> dict:
+                  max_lag: int = DEFAULT_MAX_LAG, log: Callable[[str], None] = print, actors: int = 0,
+                  actor_deadline_s: float = 30.0) -> dict:
     """Run node ``trainer`` until SIGINT/SIGTERM, ``max_updates`` updates or ``max_rollouts``
     rollouts received (learned or dropped: what a launcher knows its hosts send). The
     checkpoint is saved on every exit but a SIGKILL (and every ``cfg.checkpoint_every``
-    episodes, atomically)."""
+    episodes, atomically). ``actors`` > 0: each update waits for every actor's rollout, at most
+    ``actor_deadline_s`` after the first (:mod:`formic_ros.drivers.actors_trainer`)."""
     if cfg.imitate:
         raise ValueError("imitation runs its demonstrator beside the training worlds; train it in-process "
                          "(formic train)")
     started = time.monotonic()
     learner = Learner(cfg, run_dir, resume=resume, log=log)
     with stop_requests() as stop, contextlib.closing(learner), ros_session(domain_id, interrupt=False) as executor:
-        node = TrainerNode(learner, namespace, max_lag)
+        if actors:
+            from .actors_trainer import ActorsTrainerNode
+
+            node = ActorsTrainerNode(learner, actors, namespace, actor_deadline_s)
+        else:
+            node = TrainerNode(learner, namespace, max_lag)
         executor.add_node(node)
         while not (stop or node.updates == max_updates or node.received == max_rollouts):
             executor.spin_once(timeout_sec=0.1)
             node.report_silence()
         if not stop:  # the last weights reach the hosts before the node goes
             node.weights_pub.wait_for_all_acked(Duration(seconds=2.0))
-    return {"run_dir": str(run_dir), "version": learner.version, "updates": node.updates, "dropped": node.dropped,
+    return {"run_dir": str(run_dir), "version": learner.version, "updates": node.updates, "dropped": node.dropped, "lost": node.lost,
             "seconds": time.monotonic() - started}

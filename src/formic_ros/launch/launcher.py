@@ -97,7 +97,7 @@ def driver_specs(opts: RunOptions, team: Team) -> dict[str, dict]:
     if opts.robots:
         from .robots import robot_specs
 
-        specs |= robot_specs(opts.robots, opts.policy, opts.namespace, opts.domain_id, opts.model, opts.greedy)
+        specs |= robot_specs(opts.robots, team, opts.policy, opts.namespace, opts.domain_id, opts.model, opts.greedy)
     return specs
 
 
@@ -108,7 +108,7 @@ def launch(opts: RunOptions) -> dict:
     if opts.robots:
         from .robots import check_robots
 
-        check_robots(opts.robots, team)
+        check_robots(opts.robots, team, opts.scenario.config.n_agents)
     # The world the team needs (one-slot queues for csaf-ref): the world node serves, and the
     # recorder records, this scenario, so a replay re-simulates the same world.
     scenario = apply_world_overrides(opts.scenario, team.names)
@@ -230,7 +230,7 @@ def launch_training(opts: TrainRunOptions) -> dict:
         if trainer.alive:
             raise RuntimeError(f"the trainer did not finish its last update within {opts.deadline_ms / 1e3:g} s")
         if trainer.process.returncode != 0:
-            raise RuntimeError(f"the trainer exited with status {trainer.process.returncode}")
+            raise RuntimeError(trainer.error())
         result = JsonLines(outs["trainer"]).new()[-1]
         host.wait(HOST_EXIT_S)
     return {"run_dir": opts.run_dir, "first_episode": start, "episodes": episodes, "trainer": result,

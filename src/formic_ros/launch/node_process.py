@@ -4,7 +4,10 @@ The launcher writes each child's options as JSON (``{"node": KIND, "kwargs": {..
 the run's scenario; this loads them and calls the ``serve_*`` function the hand-written
 ``formic world | agents | planner | record | trainer`` commands call, so no command line is
 built and parsed again. The world and the trainer print their results on stdout, one JSON
-object a line. Ctrl-C (SIGINT) ends a node with status 130.
+object a line. Ctrl-C (SIGINT) ends a node with status 130. A node's own error (a
+:class:`RunError`, a file that does not load, a bad value) ends it with status 1 and its message
+in ``NAME.error`` beside the options file, where the launcher reads it to tell the user in one
+line (:meth:`Child.error <formic_ros.launch.processes.Child.error>`).
 """
 
 from __future__ import annotations
@@ -22,7 +25,7 @@ def log(text: str) -> None:
 
 
 def world(options: dict, domain_id: int | None, scenario: str | None = None, train_config: str | None = None,
-          episodes: int = 1, first_episode: int = 0) -> None:
+          episodes: int = 1, first_episode: int = 0, world_index: int | None = None) -> None:
     """One episode on ``scenario`` (a file), or training mode: ``episodes`` on ``train_config``'s."""
     from ..world.serve import serve_world
     from ..world.options import WorldNodeOptions
@@ -38,7 +41,7 @@ def world(options: dict, domain_id: int | None, scenario: str | None = None, tra
     from ..world.training import serve_training_world
 
     serve_training_world(load_train_config(train_config), episodes, options, first_episode=first_episode,
-                         domain_id=domain_id, on_episode=emit)
+                         domain_id=domain_id, on_episode=emit, world_index=world_index)
 
 
 def agents(**kwargs) -> None:
@@ -120,7 +123,8 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="python -m formic_ros.launch.node_process",
                                      description=__doc__.split("\n")[0])
     parser.add_argument("--options", required=True, help="The node's options (JSON), as the launcher writes them.")
-    spec = json.loads(Path(parser.parse_args(argv).options).read_text())
+    options = Path(parser.parse_args(argv).options)
+    spec = json.loads(options.read_text())
     from formic_world.errors import InputError
 
     from ..errors import RunError
@@ -129,9 +133,15 @@ def main(argv: list[str] | None = None) -> None:
         sys.exit(NODES[spec["node"]](**spec["kwargs"]) or 0)
     except KeyboardInterrupt:
         sys.exit(130)
-    except (RunError, InputError) as exc:  # e.g. a model file that does not load, a resume with other settings
-        log(f"error: {exc}")
+    except (RunError, InputError, ValueError, FileNotFoundError, FileExistsError) as exc:
+        # e.g. a model file that does not load, a resume with other settings, robots outside the team
+        error_file(options).write_text(str(exc))
         sys.exit(1)
+
+
+def error_file(options: Path) -> Path:
+    """Where a child launched on ``options`` (``DIR/NAME.options.json``) leaves its error message."""
+    return options.with_name(options.name.replace(".options.json", ".error"))
 
 
 if __name__ == "__main__":

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..signals import STOP_SIGNALS, FirstStopInterrupts, handling
+from .node_process import error_file
 
 STOP_GRACE_S = (5.0, 3.0)  # after SIGINT, after SIGTERM; then SIGKILL
 RECORDER_GRACE_S = (20.0, 5.0)  # the recorder closes its file on SIGINT
@@ -43,6 +44,14 @@ class Child:
     name: str
     process: subprocess.Popen
     grace_s: tuple[float, float] = STOP_GRACE_S  # after SIGINT, after SIGTERM
+    error_path: Path | None = None  # where the node process leaves its error message (node_process.error_file)
+
+    def error(self) -> str:
+        """Why the child failed, in one line naming it: its own error message, or its status."""
+        message = self.error_path.read_text().strip() if self.error_path and self.error_path.exists() else ""
+        if message:
+            return f"{self.name}: {message}"
+        return f"{self.name} exited with status {self.process.returncode} (see its log)"
 
     @property
     def alive(self) -> bool:
@@ -126,17 +135,17 @@ def watch(main: Child, others: list[Child], timeout_s: float | None, what: str, 
     deadline = None if timeout_s is None else time.monotonic() + timeout_s
     while main.alive:
         if required is not None and not required.alive:
-            raise RuntimeError(f"the {required.name} exited early with status {required.process.returncode}")
+            raise RuntimeError(required.error() if required.failed else f"the {required.name} exited early")
         for child in others:
             if child.failed:
-                raise RuntimeError(f"{child.name} failed with status {child.process.returncode} (see its log)")
+                raise RuntimeError(child.error())
         if deadline is not None and time.monotonic() > deadline:
             raise RuntimeError(f"{what} did not finish within {timeout_s} s")
         if tick is not None:
             tick()
         main.wait(poll_s)
     if main.process.returncode != 0:
-        raise RuntimeError(f"the {main.name} exited with status {main.process.returncode}")
+        raise RuntimeError(main.error())
 
 
 class Children:
@@ -192,7 +201,7 @@ class Children:
             stdout=out, stderr=err, stdin=subprocess.DEVNULL, start_new_session=True,
             preexec_fn=_die_with_parent,
         )
-        self.children.append(Child(name, process, grace_s))
+        self.children.append(Child(name, process, grace_s, error_file(options)))
         return self.children[-1]
 
     def stdout(self, name: str):

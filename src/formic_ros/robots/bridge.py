@@ -10,7 +10,7 @@ nothing of what is at the other end of ``cmd_vel`` and the pose topic: a real ro
 
 The decisions for the robot come from an in-process agent host (:class:`AgentHost`, the node
 ``agent_K``: the same policies as every simulated agent), or, with ``policy="none"``, from the
-user's own node ``agent_K`` (the world must leave K ``--external``; the bridge never publishes
+user's own node ``agent_K`` (the world leaves K ``--external``; the bridge never publishes
 actions, so it never competes with the agent's owner).
 """
 
@@ -180,17 +180,20 @@ class RobotBridge:
 
 def serve_robots(agent_ids: list[int], policy: str = "formic", settings: BridgeSettings = BridgeSettings(),
                  namespace: str = topics.DEFAULT_NAMESPACE, name: str | None = None, model: str | None = None,
-                 greedy: bool = False, once: bool = False, domain_id: int | None = None) -> None:
+                 greedy: bool = False, once: bool = False, domain_id: int | None = None,
+                 external: list[int] = ()) -> None:
     """A bridge node per robot agent, and (unless ``policy`` is ``none``) one agent host deciding
-    for them all; until interrupted (``once``: until the episode ends)."""
+    for those not in ``external`` (their own nodes decide for those); until interrupted (``once``:
+    until the episode ends, or, with no host, until the world that sent goals leaves)."""
     from ..drivers.agent_host import AgentHost
     from ..drivers.world_watch import WorldWatch
     from ..env import ros_session
 
+    decided = [a for a in agent_ids if a not in external] if policy != "none" else []
     with ros_session(domain_id) as executor:
         host = None
-        if policy != "none":
-            host = AgentHost(agent_ids, policy, model=model, greedy=greedy, namespace=namespace,
+        if decided:
+            host = AgentHost(decided, policy, model=model, greedy=greedy, namespace=namespace,
                              name=name or f"robot_bridge_host_{os.getpid()}")
             for node in host.nodes:
                 executor.add_node(node)
@@ -198,11 +201,15 @@ def serve_robots(agent_ids: list[int], policy: str = "formic", settings: BridgeS
         for bridge in bridges:
             executor.add_node(bridge.node)
         watch = WorldWatch(host) if host is not None else None
+
+        def over() -> bool:
+            if host is None:  # only driving: over when the world that sent the goals has left
+                return any(b.goal is not None for b in bridges) and not bridges[0].node.count_publishers(
+                    topics.SCENARIO)
+            return host.finished or (not host.finished and watch.ended(host.answered_step + 1, host.horizon))
+
         with suppress(KeyboardInterrupt):
-            while not (once and host is not None and host.finished):
+            while not (once and over()):
                 executor.spin_once(timeout_sec=0.1)
-                if once and watch is not None and not host.finished and watch.ended(host.answered_step + 1,
-                                                                                    host.horizon):
-                    break
         for bridge in bridges:  # leave the robots standing
             bridge.cmd_pub.publish(Twist())

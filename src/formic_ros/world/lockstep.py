@@ -11,6 +11,7 @@ from typing import Callable
 
 import numpy as np
 
+from formic_runtime.team import format_ids
 import formic_topics as topics
 from formic_world.geometry import NO_ACTION
 
@@ -159,15 +160,13 @@ class Lockstep:
         now = time.monotonic()
         if self.inbox.step == 0:
             self.collect(executor, now + self.startup_timeout_s, need_all=True, resend=resend)
-            absent = int((~self.inbox.received).sum())
-            if absent == len(self.inbox.received) and not self.allow_empty:
-                why = self.why_absent() if self.why_absent is not None else None
-                raise NobodyJoined(f"no agent answered step 0 within {self.startup_timeout_s:g} s: " + (
-                    why or "no agent host or agent node joined (check --domain-id, --namespace and "
-                    "ROS_AUTOMATIC_DISCOVERY_RANGE; --allow-empty runs the world without agents)"))
+            absent = np.flatnonzero(~self.inbox.received)
+            if len(absent) and not self.allow_empty:
+                raise NobodyJoined(self._absent_error(absent.tolist()))
             self.logger.info(
-                f"stepping: every agent answered step 0 after {time.monotonic() - started:.1f} s" if not absent else
-                f"stepping: {absent} agents did not answer step 0 within {self.startup_timeout_s:g} s"
+                f"stepping: every agent answered step 0 after {time.monotonic() - started:.1f} s" if not len(absent)
+                else f"stepping: agents {format_ids(absent.tolist())} did not answer step 0 within "
+                     f"{self.startup_timeout_s:g} s (--allow-empty)"
             )
             return time.monotonic()
         if self.rate_hz:
@@ -176,6 +175,19 @@ class Lockstep:
             return tick
         self.collect(executor, now + self.deadline_s, need_all=True, resend=resend, resend_s=STEP_RESEND_S)
         return tick
+
+    def _absent_error(self, absent: list[int]) -> str:
+        """Why step 0 cannot start: who did not answer, and the likely causes. Only at step 0:
+        a driver that vanishes later costs its agents a deadline a step, and the run goes on."""
+        waited = f"within {self.startup_timeout_s:g} s"
+        if len(absent) == len(self.inbox.received):
+            why = self.why_absent() if self.why_absent is not None else None
+            return f"no agent answered step 0 {waited}: " + (why or (
+                "no agent host or agent node joined (check --domain-id, --namespace and "
+                "ROS_AUTOMATIC_DISCOVERY_RANGE; --allow-empty runs the world without agents)"))
+        return (f"agents {format_ids(absent)} did not answer step 0 {waited}: their drivers are missing. Likely "
+                "causes: a driver on another ROS_DOMAIN_ID (--domain-id), in another --namespace, or out of "
+                "discovery range (ROS_AUTOMATIC_DISCOVERY_RANGE, ROS_STATIC_PEERS); --allow-empty steps on without them")
 
     def summary(self, book, scenario, label: str, clock: dict) -> dict:
         """``formic sim``'s summary (``book``: the episode's :class:`EpisodeStats`) plus what

@@ -23,7 +23,7 @@ class WorldNodeOptions:
     require_subscribers: tuple[str, ...] = ()  # topics (e.g. "applied_actions") needing a subscriber before step 0
     recorders: int = 0  # recorders that must match every topic before step 0 (more if present at start)
     progress: bool = False
-    allow_empty: bool = False  # step on when no agent answered step 0 (else NobodyJoined)
+    allow_empty: bool = False  # step on when agents did not answer step 0 (else NobodyJoined, naming them)
     view_port: int | None = None  # live view (formic_view, Foxglove WebSocket) on this port; None: none
     view_wait: bool = False  # with view_port: step 0 waits for a viewer to subscribe
     external: tuple[int, ...] | None = None  # agents other nodes may drive (None: any; formic_ros.world.ownership)

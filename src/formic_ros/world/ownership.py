@@ -14,7 +14,9 @@ has left the graph, refuses claims for a run's own agents from nodes the run did
 checks every action against its agent's owner. rclpy tells no publisher apart on one topic, so
 while a second node publishes on an owned agent's topic that agent's actions are not applied
 (it waits, it is not hijacked). This guards against mistakes and stray nodes, not against a node
-that deliberately publishes on an owner's topic.
+that deliberately publishes on an owner's topic. A robot's statuses (``agent_K/robot_status``)
+follow the same rule (:meth:`Ownership.status_allowed`): the first bridge seen publishing them
+keeps the robot, and a second publisher halts it.
 """
 
 from __future__ import annotations
@@ -36,6 +38,7 @@ from ..graph import RecorderReports, qualified_name, recorders_hear
 GRAPH_REFRESH_S = 2.0  # a per-agent topic's publishers are re-read at most this often
 RECHECK_S = 0.5  # refused claims are re-examined this often (has the first owner left?)
 TAKEOVER_GRACE_S = 2.0  # a claim this young is never taken over: its node may not be in the graph yet
+UNKNOWN_NODE = "_NODE_NAME_UNKNOWN_"  # the graph's name for a publisher whose node it has not discovered yet
 RECORDER_PENDING = {"owner": "", "token": "", "agents": [], "actions": None}  # an adoption waiting for recorders
 
 
@@ -68,6 +71,7 @@ class Ownership:
         self.graph: dict[str, tuple[float, list[str]]] = {}  # topic -> (read at, publisher node names)
         self.trusted: dict[tuple[str, int], float] = {}  # (topic, agent) -> allowed until (monotonic s)
         self.batch_agents: dict[str, np.ndarray] = {}  # an owner's batch topic -> the agents it drives
+        self.status_owners: dict[str, str] = {}  # a robot's status topic -> the bridge node that keeps it
         self.namespace = node.get_namespace().rstrip("/")
         subscribe(String, topics.CLAIMS, qos.reliable(1000, latched=True), self._on_claim)
         self.owners_pub = node.create_publisher(String, topics.OWNERS, qos.LATCHED)
@@ -252,16 +256,46 @@ class Ownership:
         told = sum(agent in c["agents"] and not c["actions"] for c in refused)
         if reader.get_publisher_count() <= 1 + told:
             return False
-        self.rejected["foreign publisher"] += 1
-        if ("foreign publisher", via) not in self.told:
-            self.told.add(("foreign publisher", via))
-            owner = self.claims[self.owner_of[agent]]["owner"]
-            names = self._publishers(via, fresh=True)
-            self.node.get_logger().error(
-                f"agent {agent} is driven by {owner}, but {reader.get_publisher_count()} publishers are on {via} "
-                f"(nodes {', '.join(names)}): its actions are not applied while another node publishes there (the "
-                f"first owner keeps the agent, which waits; stop the other node). Logged once, counted in the summary")
+        owner = self.claims[self.owner_of[agent]]["owner"]
+        self._halt(self.rejected, via, reader.get_publisher_count(), f"agent {agent} is driven by {owner}",
+                   "its actions are not applied while another node publishes there (the first owner keeps the "
+                   "agent, which waits; stop the other node)")
         return True
+
+    def _halt(self, rejected: Counter, via: str, count: int, owned: str, effect: str) -> None:
+        """A second node publishes on an owned topic: counted as ``foreign publisher`` in
+        ``rejected``, with one ERROR per topic naming the owner and every node on the topic (once
+        the graph names them all)."""
+        rejected["foreign publisher"] += 1
+        if ("foreign publisher", via) not in self.told:
+            names = [n for n in self._publishers(via, fresh=True) if UNKNOWN_NODE not in n]
+            if len(names) < count:  # the graph has not named every publisher yet: tell it once it has
+                return
+            self.told.add(("foreign publisher", via))
+            self.node.get_logger().error(
+                f"{owned}, but {count} publishers are on {via} (nodes {', '.join(names)}): {effect}. "
+                "Logged once, counted in the summary")
+
+    def status_allowed(self, robot: int, reader, rejected: Counter) -> bool:
+        """Whether a status on robot ``robot``'s status topic (``reader``: the world's subscription)
+        comes from the bridge that owns the robot: its bridge node ``robot_bridge_K`` if present
+        when the first status comes, else the first node seen publishing there. While
+        another node publishes beside it no status is taken: the robot's moves fail and it stays
+        in its cell (halted, not hijacked), counted in ``rejected``."""
+        via, count = reader.topic_name, reader.get_publisher_count()
+        if count <= 1 and via in self.status_owners:  # the common case, checked on every status
+            return True
+        names = [n for n in self._publishers(via, fresh=True) if UNKNOWN_NODE not in n]
+        bridge = f"{self.namespace}/robot_bridge_{robot}"  # the name every bridge has (formic robot, formic run)
+        if via not in self.status_owners and (bridge in names or len(names) == 1):
+            self.status_owners[via] = bridge if bridge in names else names[0]
+        if count <= 1 and len(names) <= 1 and self.status_owners.get(via) in (*names, None):
+            return True
+        self._halt(rejected, via, max(count, len(names)),
+                   f"robot {robot}'s statuses come from its bridge {self.status_owners.get(via, '(not known yet)')}",
+                   "no status of the robot is taken while another node publishes there (its moves fail: it stays "
+                   "in its cell; stop the other node)")
+        return False
 
     def allowed(self, via: str, agent: int) -> bool:
         """Whether agent ``agent``'s action that arrived on topic ``via`` was sent by its owner.

@@ -1,5 +1,6 @@
 """The world node's side of its robot agents: goals out on ``agent_K/robot_goal``, statuses in on
-``agent_K/robot_status``, and the robot-paced step (:func:`formic_robots.steps.robot_paced_step`)
+``agent_K/robot_status`` (only from the robot's own bridge: :meth:`Ownership.status_allowed
+<formic_ros.world.ownership.Ownership.status_allowed>`), and the robot-paced step (:func:`formic_robots.steps.robot_paced_step`)
 driven over them (docs/robots.md).
 
 Before step 0 every robot confirms it stands at its agent's start cell (a placement goal, sent
@@ -13,6 +14,7 @@ goal costs that long, not a deadline.
 from __future__ import annotations
 
 import time
+from collections import Counter
 from collections.abc import Callable
 
 from formic_interfaces.msg import RobotGoal, RobotStatus
@@ -39,16 +41,18 @@ class RobotLink:
     while they drive (the live view), at most every ``POSE_EVERY_S``."""
 
     def __init__(self, node: Node, robots: tuple[int, ...], frame: MetricFrame, tolerance: float, cell_s: float,
-                 log, on_poses: Callable[[dict[int, Pose]], None] | None = None):
+                 log, on_poses: Callable[[dict[int, Pose]], None] | None = None, owners=None):
         if not 0 < tolerance < frame.cell_size / 2:
             raise RunError(f"the robot tolerance ({tolerance} m) must be under half a cell ({frame.cell_size} m)")
         self.robots, self.frame, self.tolerance, self.cell_s = tuple(robots), frame, tolerance, cell_s
         self.log, self.on_poses = log, on_poses
         self.goal_pubs = {r: node.create_publisher(RobotGoal, topics.agent_topic(r, topics.ROBOT_GOAL),
                                                    qos.STREAM_WRITER) for r in self.robots}
-        for r in self.robots:
-            node.create_subscription(RobotStatus, topics.agent_topic(r, topics.ROBOT_STATUS),
-                                     lambda msg, r=r: self._on_status(r, msg), qos.STREAM)
+        self.owners = owners  # the world's Ownership: statuses only from each robot's own bridge
+        self.rejected: Counter = Counter()  # statuses not taken, by reason (the summary's rejected_statuses)
+        self.status_readers = {r: node.create_subscription(RobotStatus, topics.agent_topic(r, topics.ROBOT_STATUS),
+                                                           lambda msg, r=r: self._on_status(r, msg), qos.STREAM)
+                               for r in self.robots}
         self.poses: dict[int, Pose] = {}
         self.awaited: dict[int, tuple[int, int, Route]] = {}  # robot -> (step, attempt, route) of its open goal
         self.answers: dict[int, bool] = {}  # robot -> arrived, for the open goals
@@ -63,6 +67,10 @@ class RobotLink:
     # ------------------------------------------------------------------ statuses in
     def _on_status(self, robot: int, msg: RobotStatus) -> None:
         if msg.agent_id != robot:
+            self.rejected["agent id mismatch"] += 1
+            return
+        if self.owners is not None and not self.owners.status_allowed(robot, self.status_readers[robot],
+                                                                       self.rejected):
             return
         self.poses[robot] = (msg.x, msg.y, msg.yaw)
         step, attempt, route = self.awaited.get(robot, (None, None, ()))
@@ -147,7 +155,8 @@ class RobotLink:
         seconds = self.step_seconds or [0.0]
         return {"robots": list(self.robots), "robot_failed_moves": self.failures,
                 "robot_step_attempts": self.attempts, "robot_step_s_mean": sum(seconds) / len(seconds),
-                "robot_step_s_max": max(seconds), "cell_size": self.frame.cell_size}
+                "robot_step_s_max": max(seconds), "cell_size": self.frame.cell_size,
+                "rejected_statuses": dict(self.rejected)}
 
 
 def robot_link(node, scenario) -> RobotLink:
@@ -163,4 +172,5 @@ def robot_link(node, scenario) -> RobotLink:
         from formic_view.robots import RobotLayer
 
         on_poses = RobotLayer(node.view, frame, lambda: node.world.t * opts.dt).publish
-    return RobotLink(node, tuple(opts.robots), frame, opts.robot_tolerance, opts.robot_cell_s, node.log, on_poses)
+    return RobotLink(node, tuple(opts.robots), frame, opts.robot_tolerance, opts.robot_cell_s, node.log, on_poses,
+                     owners=node.ownership)

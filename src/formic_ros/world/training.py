@@ -43,31 +43,39 @@ def serve_training_world(
     first_episode: int = 0,
     domain_id: int | None = None,
     on_episode: Callable[[dict], None] | None = None,
+    world_index: int | None = None,
 ) -> list[dict]:
     """Distributed training's world: ``episodes`` episodes, each on a new scenario drawn as the
     in-process trainer draws them (:func:`formic_trainer.worlds.sample_scenarios` from the
     episode's scenario stream: world size, obstacles, curriculum intensities,
     training start), with the training masks in the observations. One meta-agent world: the
     configuration's ``teams`` must hold one team. ``on_episode`` gets each episode's summary
-    (with ``episode``, the global episode number, and the curriculum's intensities)."""
+    (with ``episode``, the global episode number, and the curriculum's intensities).
+    ``world_index``: an actor's world (``formic train-ros --actors K``): world ``world_index``
+    of each episode set's meta-agent worlds, whose global episodes step by their number, as
+    ``formic train`` counts them."""
     from formic_trainer.worlds import sample_scenarios, scenario_rng
 
     from ..env import ros_session
     from .lock import world_lock
 
-    require_one_world(cfg)
+    if world_index is None:
+        require_one_world(cfg)
+    stride = 1 if world_index is None else len(cfg.teams)
     options = replace(options, training_masks=True, policy_label=options.policy_label or "formic:learning")
     summaries = []
     with world_lock(options.namespace, domain_id), ros_session(domain_id) as executor:
         node = None
-        for episode in range(first_episode, first_episode + episodes):
-            (scenario,), highway, deposit = sample_scenarios(cfg, scenario_rng(cfg, episode), episode)
+        last_episode = first_episode + (episodes - 1) * stride
+        for episode in range(first_episode, last_episode + 1, stride):
+            scenarios, highway, deposit = sample_scenarios(cfg, scenario_rng(cfg, episode), episode)
+            scenario = scenarios[world_index or 0]
             if node is None:
                 node = WorldNode(scenario, options, why_absent=why_hosts_silent)
                 executor.add_node(node)
             else:
                 node.load(scenario)
-            summary = node.run(executor, last=episode + 1 == first_episode + episodes)
+            summary = node.run(executor, last=episode == last_episode)
             summary.update(episode=episode, highway_intensity=highway, deposit_strength=deposit)
             summaries.append(summary)
             if on_episode is not None:

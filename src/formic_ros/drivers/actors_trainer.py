@@ -1,0 +1,84 @@
+"""The trainer node of K actors (``formic train-ros --actors K``, ``formic trainer --actors K``):
+synchronous updates. Each actor (a world and its learning host, :mod:`formic_ros.launch.actors`)
+plays one of the configuration's meta-agent worlds and sends its chunk's rollout of the
+current weights; the node joins the K rollouts in team-wide agent order
+(:func:`formic_trainer.rollout.join_rollouts`: the one rollout ``formic train`` makes of all
+its worlds), makes one update and broadcasts its weights, which every actor waits for.
+
+An actor is told apart by its agents (a world's team-wide ids are its own). One that sends
+nothing within ``deadline_s`` of the first rollout of an update (killed, stalled, cut off) is
+left out of it: one warning line names it, its rollout counts as lost, and the update goes on
+with the others. Its rollouts of older weights, when they come, are dropped (counted); a
+restarted actor takes the newest weights (latched) and its next rollout joins again.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from formic_interfaces.msg import Rollout as RolloutMsg
+
+import formic_topics as topics
+from formic_trainer.learner import Learner
+from formic_trainer.rollout import Rollout, join_rollouts
+
+from ..convert import decode_rollout
+from .trainer import SILENCE_S, TrainerNode
+
+
+class ActorsTrainerNode(TrainerNode):
+    """Node ``trainer`` for ``actors`` actors, one per meta-agent world of the configuration."""
+
+    def __init__(self, learner: Learner, actors: int, namespace: str = topics.DEFAULT_NAMESPACE,
+                 deadline_s: float = 30.0):
+        teams = learner.cfg.teams
+        if actors != len(teams):
+            raise ValueError(f"{actors} actors for {len(teams)} worlds (teams={list(teams)}): one actor per world")
+        self.actors, self.deadline_s = actors, deadline_s
+        self.world_starts = np.cumsum([0, *teams])[:-1]  # an actor's first team-wide agent id
+        self.pending: dict[int, Rollout] = {}  # actor -> its rollout of the current weights
+        self.gather_started = 0.0
+        super().__init__(learner, namespace, max_lag=0)
+        self.episodes_per_end = actors
+
+    def actor_of(self, rollout: Rollout) -> int:
+        return int(np.searchsorted(self.world_starts, rollout.agent_ids[0], side="right") - 1)
+
+    def on_rollout(self, msg: RolloutMsg) -> None:
+        self.received += 1
+        self.heard_at, self.silence_report_s = time.monotonic(), SILENCE_S
+        try:
+            rollout = decode_rollout(msg)
+        except ValueError as exc:
+            self.drop(f"a malformed rollout: {exc}")
+            return
+        actor = self.actor_of(rollout)
+        if rollout.weights_version != self.learner.version or actor in self.pending:
+            self.drop(f"actor {actor}'s rollout of weights version {rollout.weights_version} (now gathering "
+                      f"version {self.learner.version}'s)")
+            return
+        if not self.pending:
+            self.gather_started = time.monotonic()
+        self.pending[actor] = rollout
+        if len(self.pending) == self.actors:
+            self.update()
+
+    def update(self) -> None:
+        rollout = join_rollouts(list(self.pending.values()))
+        self.pending.clear()
+        self.learn_from(rollout, 0)
+
+    def report_silence(self) -> None:
+        """Also the gather's deadline: actors silent for ``deadline_s`` since an update's first
+        rollout are left out of it, one line naming them."""
+        super().report_silence()
+        if not self.pending or time.monotonic() - self.gather_started < self.deadline_s:
+            return
+        missing = sorted(set(range(self.actors)) - self.pending.keys())
+        self.lost += len(missing)
+        self.get_logger().warning(
+            f"actor {', '.join(map(str, missing))} sent no rollout of weights version {self.learner.version} within "
+            f"{self.deadline_s:g} s: updating from actor {', '.join(map(str, sorted(self.pending)))} "
+            f"({self.lost} rollouts lost so far)")
+        self.update()

@@ -1,0 +1,96 @@
+"""`formic train-ros --actors 2` reproduces `formic train` on two worlds.
+
+Two tiny worlds (4 agents each, 20x20, 32-step episodes, 16-step rollouts, the cpu preset):
+`formic train` in this process for two episode sets, and the trainer node with two actors
+(each a world and its learning host: five real processes, own domain) for the same four
+environment episodes. The same scenarios, the same food in every world and episode, and the
+same final weights, bit for bit (the actors' team-wide draws, the trainer's joined rollouts:
+tests/test_actor_split.py)."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+pytest.importorskip("rclpy")
+pytest.importorskip("formic_interfaces.msg")
+torch = pytest.importorskip("torch")
+
+from ros_helpers import Spawner, fresh_domain_id  # noqa: E402
+
+from formic_agent.checkpoint import read_checkpoint  # noqa: E402
+from formic_trainer.config import make_config  # noqa: E402
+from formic_trainer.train import Trainer  # noqa: E402
+
+pytestmark = pytest.mark.filterwarnings("ignore::UserWarning", "ignore:module 'sre_:DeprecationWarning")
+
+CFG = make_config("cpu", seed=3, teams=(4, 4), world_sizes=((20, 20), (20, 20)), episode_steps=32, rollout_steps=16,
+                  team_reward=0.25)
+
+
+def test_two_actors_match_the_in_process_trainer(tmp_path):
+    torch.set_num_threads(1)
+    trainer = Trainer(CFG, tmp_path / "in_process", resume=False, log=lambda _: None)
+    want = []  # (episode, world, seed, food)
+    for _ in range(2):
+        episode = trainer.episode
+        stats = trainer.run_episode_set()
+        want += [(episode, k, w.scenario.seed, stats[f"food_env{k}"]) for k, w in enumerate(trainer.envs.worlds)]
+    trainer.close()
+    assert sum(food for *_, food in want) > 0, "the setting must collect food to compare"
+
+    config_file = tmp_path / "train_config.json"
+    config_file.write_text(json.dumps(CFG.to_dict()))
+    spawner = Spawner(tmp_path, fresh_domain_id())
+    try:
+        run = spawner.formic("train_ros_actors", "train-ros", "--train-config", str(config_file), "--actors", "2",
+                             "--run-dir", str(tmp_path / "actors"), "--episodes", "4", "--domain-id",
+                             str(spawner.domain_id), "--timeout", "100", "--json", "--fresh", limit_s=130)
+        assert run.wait() == 0, run.output()[-3000:]
+        result = run.json_line()
+    finally:
+        spawner.reap_all()
+    got = [(e["episode"], e["actor"], e["seed"], e["food"]) for e in result["episodes"]]
+    assert got == sorted(want)
+    assert all(e["missed_actions"] == 0 for e in result["episodes"])
+    assert result["trainer"]["version"] == 4 and result["trainer"]["dropped"] == 0 and result["trainer"]["lost"] == 0
+    assert set(result["exit_codes"].values()) == {0}
+    saved = read_checkpoint(tmp_path / "actors" / "latest.pt")
+    assert saved["progress"]["episode"] == 4 and saved["progress"]["updates"] == 4
+    weights = trainer.net.state_dict()
+    assert saved["state_dict"].keys() == weights.keys()
+    for key in weights:
+        assert torch.equal(saved["state_dict"][key], weights[key]), key
+
+
+def test_a_killed_actor_is_left_out_and_a_restarted_one_rejoins(tmp_path):
+    """`formic trainer --actors 2` with two `formic actor` processes: actor 1 is SIGKILLed
+    (world and host with it) mid-episode; within the 3 s deadline the trainer updates from
+    actor 0 alone, one warning line naming actor 1 per lost rollout, counted; actor 1
+    restarted takes the newest weights and its rollouts join the updates again (8x8)."""
+    config_file = tmp_path / "train_config.json"
+    config_file.write_text(json.dumps({**CFG.to_dict(), "rollout_steps": 8}))
+    spawner = Spawner(tmp_path, fresh_domain_id())
+    domain = ["--domain-id", str(spawner.domain_id), "--train-config", str(config_file)]
+    try:
+        trainer = spawner.formic("trainer", "trainer", *domain, "--run-dir", str(tmp_path / "run"), "--fresh",
+                                 "--actors", "2", "--actor-deadline", "3", "--max-updates", "24", "--json",
+                                 limit_s=150)
+        spawner.formic("actor0", "actor", *domain, "--actor", "0", "--episodes", "6", limit_s=150)
+        actor1 = spawner.formic("actor1", "actor", *domain, "--actor", "1", "--episodes", "6", limit_s=150)
+        trainer.wait_for_text("update 2: 8x8", timeout=90)  # both actors joined, mid-episode
+        actor1.kill()
+        trainer.wait_for_text("actor 1 sent no rollout", timeout=30)
+        spawner.formic("actor1_again", "actor", *domain, "--actor", "1", "--episodes", "6",
+                                   "--first-episode", "2", limit_s=150)
+        assert trainer.wait() == 0, trainer.output()[-3000:]
+        result = trainer.json_line()
+        log = trainer.output()
+    finally:
+        spawner.reap_all()
+    lost_lines = [line for line in log.splitlines() if "sent no rollout" in line]
+    assert result["updates"] == 24 and result["lost"] == len(lost_lines) >= 1
+    assert all("actor 1 sent no rollout of weights version" in line and "from actor 0 (" in line
+               for line in lost_lines)
+    assert "8x8" in log[log.rindex("sent no rollout"):], "the restarted actor never joined an update again"
