@@ -11,13 +11,15 @@ node takes messages from others: bytes that do not decode are reported, not drop
 from __future__ import annotations
 
 import array
+import functools
 import json
+import struct
 from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
-from rclpy.serialization import deserialize_message
-from formic_interfaces.msg import (ActionBatch, AgentObservation, ObservationBatch, ScenarioDescription, Weights,
-                                   WorldState)
+from rclpy.serialization import deserialize_message, serialize_message
+from formic_interfaces.msg import (ActionBatch, AgentAction, AgentObservation, ObservationBatch, ScenarioDescription,
+                                   Weights, WorldState)
 from formic_interfaces.msg import Rollout as RolloutMsg
 
 from formic_agent.policy import AgentBatch
@@ -119,6 +121,79 @@ def encode_agent_observations(batch: AgentBatch, rewards: np.ndarray, done: bool
     return out
 
 
+CDR_LE = b"\x00\x01\x00\x00"  # a serialized message's encapsulation header: plain CDR, little-endian
+
+
+@functools.cache
+def _agent_observation_layout(values: int) -> np.dtype:
+    """AgentObservation's CDR bytes (little-endian, after the header) for ``values`` floats of
+    data and a 5-entry action mask, as one NumPy record: fields at their aligned offsets."""
+    tail = 16 + 4 * values  # 4 bytes before the action mask's length (the record is tail + 40 = 56 + 4 * values)
+    return np.dtype({
+        "names": ["header", "step", "agent_id", "channels", "size", "data_len", "data", "mask_len", "mask",
+                  "load", "reward", "queued", "done", "row", "col", "height", "width"],
+        "formats": ["V4", "<u4", "<u4", "<u2", "<u2", "<u4", ("<f4", values), "<u4", ("u1", N_ACTIONS),
+                    "<f4", "<f4", "u1", "u1", "<i4", "<i4", "<u2", "<u2"],
+        "offsets": [0, 4, 8, 12, 14, 16, 20, tail + 4, tail + 8,
+                    tail + 16, tail + 20, tail + 24, tail + 25, tail + 28, tail + 32, tail + 36, tail + 38],
+        "itemsize": tail + 40,
+    })
+
+
+def agent_observation_bytes(batch: AgentBatch, rewards: np.ndarray, done: bool, rows=None) -> list[bytes]:
+    """:func:`encode_agent_observations` as serialized messages, built for all rows at once
+    (a publisher sends bytes as they are: no message objects, no per-message conversion)."""
+    ids, observations, action_mask, positions, loads, queued, rewards = _rows(batch, rewards, rows)
+    channels, size = observations.shape[1], observations.shape[2]
+    records = np.zeros(len(ids), dtype=_agent_observation_layout(channels * size * size))
+    records["header"] = np.void(CDR_LE)
+    records["step"], records["agent_id"] = batch.step, ids
+    records["channels"], records["size"], records["data_len"] = channels, size, channels * size * size
+    records["data"] = observations.reshape(len(ids), -1)
+    records["mask_len"], records["mask"] = N_ACTIONS, action_mask
+    records["load"], records["reward"], records["queued"], records["done"] = loads, rewards, queued, done
+    records["row"], records["col"] = positions[:, 0], positions[:, 1]
+    records["height"], records["width"] = batch.world_shape
+    data, width = records.tobytes(), records.dtype.itemsize
+    return [data[i:i + width] for i in range(0, len(data), width)]
+
+
+def agent_observation_head(data: bytes) -> tuple[bytes, int, int, bool] | None:
+    """A serialized AgentObservation in the layout of :func:`agent_observation_bytes` (bytes in
+    another layout, say big-endian, are serialized again by rclpy), with its step, agent id and
+    done flag; None when it does not decode or its action mask is not 5 entries."""
+    if data[:2] != CDR_LE[:2] or len(data) < 20 or len(data) != 56 + 4 * int.from_bytes(data[16:20], "little"):
+        try:
+            msg = deserialize_message(data, AgentObservation)
+        except RuntimeError:
+            return None
+        data = serialize_message(msg)  # little-endian here
+        if len(msg.action_mask) != N_ACTIONS or data[:2] != CDR_LE[:2]:
+            return None
+    mask_len = 20 + 4 * int.from_bytes(data[16:20], "little")  # where the action mask's length is
+    if int.from_bytes(data[mask_len:mask_len + 4], "little") != N_ACTIONS:
+        return None
+    step, agent_id = struct.unpack_from("<II", data, 4)
+    return data, step, agent_id, bool(data[mask_len + 21])
+
+
+def decode_agent_observation_bytes(datas: list[bytes]) -> AgentBatch:
+    """Several agents' serialized AgentObservations of one step (as :func:`agent_observation_head`
+    returns them) as an AgentBatch, decoded as one array."""
+    records = np.frombuffer(b"".join(datas), dtype=_agent_observation_layout(int.from_bytes(datas[0][16:20], "little")))
+    channels, size = int(records["channels"][0]), int(records["size"][0])
+    return AgentBatch(
+        step=int(records["step"][0]),
+        agent_ids=records["agent_id"].astype(np.int64),
+        observations=np.array(records["data"]).reshape(len(records), channels, size, size),  # a copy: writable
+        action_mask=records["mask"].astype(bool),
+        positions=np.stack([records["row"], records["col"]], axis=1).astype(np.int64),
+        loads=records["load"].astype(np.float64),
+        queued=records["queued"].astype(bool),
+        world_shape=(int(records["height"][0]), int(records["width"][0])),
+    )
+
+
 def decode_agent_observations(msgs: list[AgentObservation]) -> AgentBatch:
     """Several agents' AgentObservation messages of one step as an AgentBatch."""
     first = msgs[0]
@@ -146,6 +221,26 @@ def decode_actions(msg: ActionBatch) -> tuple[int, np.ndarray, np.ndarray]:
     """Inverse of :func:`encode_actions`: step, agent ids and actions (int64, -1 for 255)."""
     wire = read(msg.actions, np.uint8).astype(np.int64)
     return msg.step, read(msg.agent_ids, np.uint32).astype(np.int64), np.where(wire == NO_ACTION_WIRE, -1, wire)
+
+
+AGENT_ACTION = struct.Struct("<4sIIB3x")  # AgentAction's CDR bytes: header, step, agent id, action, padding
+
+
+def agent_action_bytes(step: int, agent_id: int, action: int) -> bytes:
+    """An AgentAction, serialized (what a publisher sends as it is)."""
+    return AGENT_ACTION.pack(CDR_LE, step, agent_id, action)
+
+
+def decode_agent_action(data: bytes) -> tuple[int, int, int] | None:
+    """A serialized AgentAction's step, agent id and action (None: the bytes do not decode).
+    Little-endian CDR is read directly (one per agent and step); anything else goes through rclpy."""
+    if len(data) >= 13 and data[:2] == CDR_LE[:2]:
+        return AGENT_ACTION.unpack_from(data.ljust(AGENT_ACTION.size, b"\0"))[1:]
+    try:
+        msg = deserialize_message(data, AgentAction)
+    except RuntimeError:
+        return None
+    return msg.step, msg.agent_id, msg.action
 
 
 def encode_applied(step: int, actions: np.ndarray) -> ActionBatch:

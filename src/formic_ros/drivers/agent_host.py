@@ -88,8 +88,8 @@ class AgentHost(Node):
             self.action_pubs = {}
             for a in self.ids.tolist():
                 node = lean_node(topics.agent_node_name(a), namespace)
-                node.create_subscription(AgentObservation, f"~/{topics.AGENT_OBSERVATION}",
-                                         lambda msg, a=a: self._on_agent_observation(a, msg), qos.LATEST)
+                node.create_subscription(AgentObservation, f"~/{topics.AGENT_OBSERVATION}",  # bytes: decoded per step
+                                         lambda data, a=a: self._on_agent_observation(a, data), qos.LATEST, raw=True)
                 self.action_pubs[a] = node.create_publisher(AgentAction, f"~/{topics.AGENT_ACTION}", qos.STREAM_WRITER)
                 self.nodes.append(node)
             self.create_timer(PARTIAL_WAIT_S / 4, self._answer_late_step)
@@ -115,7 +115,7 @@ class AgentHost(Node):
     # ---------------------------------------------------------------------- episode
     def _reset_steps(self) -> None:
         self.collecting = -1  # step whose per-agent observations are being gathered
-        self.gathered: dict[int, AgentObservation] = {}
+        self.gathered: dict[int, bytes] = {}  # agent -> its serialized observation (convert.agent_observation_head)
         self.gathering_since = 0.0  # when the first of them arrived
         self.answer_ids = np.zeros(0, dtype=np.int64)
         self.answer = np.zeros(0, dtype=np.int64)
@@ -156,27 +156,32 @@ class AgentHost(Node):
         return turn
 
     # ------------------------------------------------------------------- observations
-    def _on_agent_observation(self, agent: int, msg: AgentObservation) -> None:
-        if msg.agent_id != agent:
+    def _on_agent_observation(self, agent: int, data: bytes) -> None:
+        head = convert.agent_observation_head(data)
+        if head is None:
+            self.log.warning(f"agent {agent}: an observation that does not decode", throttle_duration_sec=5.0)
             return
-        turn = self._turn(msg.step, msg.done)
+        data, step, agent_id, done = head
+        if agent_id != agent:
+            return
+        turn = self._turn(step, done)
         if turn is Turn.RESEND:
             if agent in self.answer_ids:  # a re-send
                 action = int(self.answer[self.answer_ids == agent][0])
-                self.action_pubs[agent].publish(AgentAction(step=msg.step, agent_id=agent, action=action))
+                self.action_pubs[agent].publish(convert.agent_action_bytes(step, agent, action))
             else:  # late: the others were answered without it
-                self._answer(convert.decode_agent_observations([msg]))
+                self._answer(convert.decode_agent_observation_bytes([data]))
             return
-        if turn not in (Turn.START, Turn.STEP) or msg.step < self.collecting:
+        if turn not in (Turn.START, Turn.STEP) or step < self.collecting:
             return
-        if msg.step > self.collecting:
-            self.collecting, self.gathered, self.gathering_since = msg.step, {}, time.monotonic()
-        self.gathered[agent] = msg
+        if step > self.collecting:
+            self.collecting, self.gathered, self.gathering_since = step, {}, time.monotonic()
+        self.gathered[agent] = data
         if len(self.gathered) == self.expected:
             self._answer_gathered()
 
     def _answer_gathered(self) -> None:
-        self._answer(convert.decode_agent_observations([self.gathered[a] for a in sorted(self.gathered)]))
+        self._answer(convert.decode_agent_observation_bytes([self.gathered[a] for a in sorted(self.gathered)]))
 
     def _answer_late_step(self) -> None:
         """Timer: act for the agents heard when the rest of the step is late (a lost message)."""
@@ -217,8 +222,8 @@ class AgentHost(Node):
         if self.transport == "batched":
             self.actions_pub.publish(convert.encode_actions(step, batch.agent_ids, actions))
         else:
-            for a, action in zip(batch.agent_ids.tolist(), actions.tolist()):
-                self.action_pubs[a].publish(AgentAction(step=step, agent_id=a, action=action))
+            for a, action in zip(batch.agent_ids.tolist(), actions.tolist()):  # serialized here: no message objects
+                self.action_pubs[a].publish(convert.agent_action_bytes(step, a, action))
 
 
 def serve_agents(agent_ids: list[int], spec: str, once: bool = False, domain_id: int | None = None, **settings) -> int:

@@ -54,6 +54,7 @@ class ActionInbox:
         self.is_open = False
         self.actions = np.full(n_agents, NO_ACTION, dtype=np.int64)
         self.received = np.zeros(n_agents, dtype=bool)
+        self.heard = 0  # how many of ``received`` are set (the wait loop reads it after every message)
         self.rejected: Counter = Counter()
         self.duplicates = 0
         self.closed_step = -1
@@ -68,6 +69,7 @@ class ActionInbox:
         self.step, self.is_open = step, True
         self.actions[:] = NO_ACTION
         self.received[:] = False
+        self.heard = 0
 
     def close(self) -> np.ndarray:
         self.is_open = False
@@ -88,6 +90,7 @@ class ActionInbox:
             return
         self.actions[agent] = action
         self.received[agent] = True
+        self.heard += 1
 
     def offer(self, step: int, agent_ids: np.ndarray, actions: np.ndarray, source: str, via: str = "") -> None:
         """Take the valid entries of an answer for ``step``; reject and log the rest."""
@@ -120,6 +123,7 @@ class ActionInbox:
         self.duplicates += int((~fresh).sum())
         self.actions[ids[fresh]] = acts[fresh]
         self.received[ids[fresh]] = True
+        self.heard = int(self.received.sum())
 
 
 class Lockstep:
@@ -143,7 +147,8 @@ class Lockstep:
         ``resend(missing)`` every ``resend_s`` meanwhile (an observation lost under load;
         ``missing``: a mask of the agents that have not answered)."""
         next_resend = time.monotonic() + resend_s
-        while not (need_all and self.inbox.received.all()):
+        inbox = self.inbox
+        while not (need_all and inbox.heard == inbox.n_agents):
             now = time.monotonic()
             if now >= deadline:
                 return

@@ -62,8 +62,9 @@ class WorldNode(Node):
         self.outbox = WorldOutbox(self, n, options, lambda: self.metric_frame)
         sub = functools.partial(convert.checked_subscription, self, on_malformed=self._on_malformed)
         self.actions_sub = sub(ActionBatch, topics.ACTIONS, qos.STREAM, self._on_action_batch)
-        action_readers = [sub(AgentAction, topics.agent_topic(a, topics.AGENT_ACTION), qos.STREAM,
-                              lambda m, a=a: self._on_agent_action(a, m)) for a in range(n)]
+        action_readers = [self.create_subscription(AgentAction, topics.agent_topic(a, topics.AGENT_ACTION),
+                                                   lambda data, a=a: self._on_agent_action(a, data), qos.STREAM,
+                                                   raw=True) for a in range(n)]
         self.action_topics = [reader.topic_name for reader in action_readers]
         self.recorder_reports = RecorderReports(self)
         self.why_absent = why_absent or (lambda node: node.ownership.why_nobody_answered())
@@ -116,12 +117,17 @@ class WorldNode(Node):
     def _on_malformed(self, topic: str, size: int) -> None:
         self.inbox.reject("malformed", 1, f"{topic}: {size} bytes that do not decode")
 
-    def _on_agent_action(self, agent: int, msg: AgentAction) -> None:
-        if msg.agent_id != agent:
-            source = topics.agent_topic(agent, topics.AGENT_ACTION)
-            self.inbox.reject("agent id mismatch", 1, f"{source}: message for agent {msg.agent_id}")
+    def _on_agent_action(self, agent: int, data: bytes) -> None:
+        """One agent's serialized action (decoded here: the common case, one per agent and step)."""
+        if (fields := convert.decode_agent_action(data)) is None:
+            self._on_malformed(self.action_topics[agent], len(data))
             return
-        self.inbox.offer_one(msg.step, agent, msg.action, self.action_topics[agent])
+        step, agent_id, action = fields
+        if agent_id != agent:
+            source = topics.agent_topic(agent, topics.AGENT_ACTION)
+            self.inbox.reject("agent id mismatch", 1, f"{source}: message for agent {agent_id}")
+            return
+        self.inbox.offer_one(step, agent, action, self.action_topics[agent])
 
     # ---------------------------------------------------------------------- waiting
     def _wait_for_subscribers(self, executor) -> None:

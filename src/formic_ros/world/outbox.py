@@ -81,8 +81,8 @@ class WorldOutbox:
             listening = [a for a in listening if missing[a]]
         if listening:
             rows = np.asarray(listening, dtype=np.int64)
-            for a, msg in zip(listening, convert.encode_agent_observations(batch, result.rewards, result.done, rows)):
-                self.agent_obs_pubs[a].publish(msg)
+            for a, data in zip(listening, convert.agent_observation_bytes(batch, result.rewards, result.done, rows)):
+                self.agent_obs_pubs[a].publish(data)
 
     def applied(self, t: int, actions: np.ndarray) -> None:
         """What step ``t`` applied (volatile: nobody can read it later, so only to a subscriber)."""

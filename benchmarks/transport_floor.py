@@ -1,0 +1,88 @@
+#!/usr/bin/env python3
+"""The ROS transports against one process and against the publish floor, side by side
+(docs/ros.md, "Speed").
+
+Each round runs, on one scenario and seed: ``formic sim`` (steps/s from its decision + world
+time a step), ``formic run --transport batched``, ``formic run --transport per-agent`` (steps/s
+after step 0, as their summaries say) and ``benchmarks/rclpy_publish.py`` (the cost of one
+rclpy publish to another process, measured in the same run). The serial publish floor of the
+per-agent transport is ``formic sim``'s step plus two publishes an agent (its observation and
+its action), one after the other. Printed: medians over the rounds, the ratios, and whether
+food and state digest equal ``formic sim``'s in every run:
+
+    .venv/bin/python benchmarks/transport_floor.py --agents 16 --size 32 --steps 64 --rounds 1
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+FORMIC = [sys.executable, "-m", "formic_cli.main"]
+
+
+def run_json(command: list[str]) -> dict:
+    """The last line of a command's stdout, as JSON (the command must succeed)."""
+    done = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, check=False)
+    if done.returncode != 0:
+        raise SystemExit(f"{' '.join(command)} failed ({done.returncode}): {done.stderr[-2000:]}")
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def one_round(world: list[str], agents: int, domain_id: int, out: Path) -> dict:
+    """One measurement of every path (steps/s, or µs a publish) with each run's food and digest."""
+    sim = run_json([*FORMIC, "sim", *world, "--json", "--out", str(out)])
+    row = {"sim": (1e3 / sim["step_ms_mean"], sim["food"], sim["state_digest"])}
+    for transport in ("batched", "per-agent"):
+        run = run_json([*FORMIC, "run", *world, "--transport", transport, "--domain-id", str(domain_id), "--json"])
+        row[transport] = (run["steps_per_s"], run["food"], run["state_digest"])
+    publish = run_json([sys.executable, str(ROOT / "benchmarks" / "rclpy_publish.py"), "--topics", str(agents),
+                        "--rounds", "100", "--domain-id", str(domain_id), "--json"])
+    row["us_per_publish"] = publish["us_per_publish"]
+    return row
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--agents", type=int, default=128)
+    parser.add_argument("--size", type=int, default=128)
+    parser.add_argument("--steps", type=int, default=1024)
+    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--policy", default="formic")
+    parser.add_argument("--rounds", type=int, default=3, help="Medians over this many rounds.")
+    parser.add_argument("--domain-id", type=int, default=78, help="A ROS domain no other run uses.")
+    parser.add_argument("--out", type=Path, default=Path("out/transport_floor"), help="formic sim's picture.")
+    args = parser.parse_args()
+
+    world = ["--agents", str(args.agents), "--size", str(args.size), "--steps", str(args.steps),
+             "--seed", str(args.seed), "--policy", args.policy]
+    rounds = [one_round(world, args.agents, args.domain_id, args.out) for _ in range(args.rounds)]
+    median = {key: statistics.median(r[key][0] for r in rounds) for key in ("sim", "batched", "per-agent")}
+    publish_us = statistics.median(r["us_per_publish"] for r in rounds)
+    sim_s = 1.0 / median["sim"]
+    floor = 1.0 / (sim_s + 2 * args.agents * publish_us * 1e-6)  # serial: sim's step, then 2N publishes
+    expected = rounds[0]["sim"][1:]
+    same = all(r[key][1:] == expected for r in rounds for key in ("sim", "batched", "per-agent"))
+
+    print(f"{args.agents} agents, {args.size}x{args.size}, {args.steps} steps, seed {args.seed}, "
+          f"policy {args.policy}; medians of {args.rounds} round(s)")
+    print(f"publish: {publish_us:.1f} us ({args.agents} topics); per-agent serial floor: {floor:.0f} steps/s "
+          f"({1.0 / floor / sim_s:.2f}x formic sim)")
+    print(f"{'path':<22}{'steps/s':>9}{'vs sim':>9}{'vs floor':>10}   rounds")
+    for key, label in (("sim", "formic sim"), ("batched", "run batched"), ("per-agent", "run per-agent")):
+        each = " ".join(f"{r[key][0]:.0f}" for r in rounds)
+        ratios = f"{median['sim'] / median[key]:>8.2f}x{floor / median[key]:>9.2f}x"
+        print(f"{label:<22}{median[key]:>9.0f}{ratios}   {each}")
+    print(f"food {expected[0]}, digest {expected[1]}: "
+          + ("equal in every run" if same else "DIFFERENT: " + json.dumps(rounds)))
+    if not same:
+        raise SystemExit(1)
+
+
+if __name__ == "__main__":
+    main()
