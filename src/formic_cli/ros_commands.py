@@ -221,10 +221,10 @@ def agents(ids, policy, model, greedy, transport, namespace, domain_id, name, th
                 raise click.UsageError("learning mode (--train-config) needs --transport batched")
             serve_learning_agents(agent_ids, load_train_config(train_config), switch=switch_weights,
                                   first_episode=first_episode, namespace=namespace, name=name,
-                                  episodes=1 if once else episodes, domain_id=domain_id, torch_threads=threads)
+                                  episodes=1 if once else episodes, domain_id=domain_id, threads=threads)
             return
         serve_agents(agent_ids, policy, model=model, greedy=greedy, transport=transport, namespace=namespace,
-                     name=name, once=once, domain_id=domain_id, torch_threads=threads)
+                     name=name, once=once, domain_id=domain_id, threads=threads)
 
 
 @click.command("train-ros")

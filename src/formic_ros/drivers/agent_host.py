@@ -63,20 +63,20 @@ class AgentHost(Node):
 
     def __init__(self, agent_ids: list[int], spec: str, model: str | None = None, greedy: bool = False,
                  transport: str = "per-agent", namespace: str = topics.DEFAULT_NAMESPACE,
-                 name: str | None = None, torch_threads: int = 1):
+                 name: str | None = None, threads: int = 1):
         if transport not in TRANSPORTS:
             raise ValueError(f"unknown transport {transport!r}; choose from {', '.join(TRANSPORTS)}")
         self.ids = np.array(sorted(agent_ids), dtype=np.int64)
         self.team = Team.for_agents(spec, self.ids.tolist())
         self.world_needs = world_overrides(self.team.names)  # csaf-ref: one-slot queues
-        configure_threads(torch_threads)
+        configure_threads(threads)
         for policy, _ in self.team.build(model=model, greedy=greedy).members:
             if isinstance(policy, CentralPolicy):
                 raise ValueError(f"{policy.name} needs the full world: it runs as its own node")
         self.transport = transport
         super().__init__(name or f"agent_host_{os.getpid()}", namespace=namespace)
         declare_settings(self, {"agent_ids": self.ids.tolist(), "policy": spec, "model": model,
-                                        "greedy": greedy, "transport": transport, "torch_threads": torch_threads})
+                                        "greedy": greedy, "transport": transport, "threads": threads})
         self.log = self.get_logger()
         self.nodes = [self]
         self.create_subscription(ScenarioDescription, topics.SCENARIO, self._on_scenario, qos.LATCHED)

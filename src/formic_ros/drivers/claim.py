@@ -1,4 +1,4 @@
-"""A driver node's side of agent ownership (the rules: :mod:`formic_ros.world.ownership`;
+"""A driver node's side of agent ownership (the rules: :mod:`formic_ros.world.claims`;
 docs/ros.md, "Who may drive an agent"): the latched claim on ``claims``, the world's answer on
 ``owners``, and whether the driver may answer yet."""
 
