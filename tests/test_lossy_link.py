@@ -53,3 +53,26 @@ def test_training_crosses_a_lossy_link(tmp_path):
     food = [trainer.run_episode_set()["food_env0"] for _ in range(episodes)]
     trainer.close()
     assert [e["food"] for e in result["episodes"]] == food, result
+
+
+def test_actors_train_across_a_lossy_link(tmp_path):
+    """`formic trainer --actors 2` in one namespace, `formic actor --actor 0` and `--actor 1` in
+    the other: only rollouts and weights cross the 20 ms, 2%-loss link. Every update gets both
+    actors' rollouts (none dropped or lost) and the run ends well within its bound. The update
+    rates on this and a clean link, their ratio, the message sizes and the update's phases are
+    `sudo .venv/bin/python benchmarks/actors_link.py` (docs/ros.md, "Actors")."""
+    pytest.importorskip("rclpy")
+    pytest.importorskip("torch")
+    from benchmarks.actors_link import actors_across_link
+
+    episodes = 2  # per actor, two rollouts each
+    result = actors_across_link(episodes=episodes, delay_ms=20, loss=0.02, prefix="fxat", net=218, domain_id=150,
+                                limit_s=180, workdir=str(tmp_path))
+    assert result["exit_codes"] == {"trainer": 0, "actor0": 0, "actor1": 0}, result
+    trainer = result["trainer"]
+    assert (trainer["updates"], trainer["dropped"], trainer["lost"]) == (2 * episodes, 0, 0), result
+    assert trainer["timing"]["timed_updates"] == 2 * episodes - 1, result
+    for actor in (0, 1):
+        played = result["actors"][f"actor{actor}"]["episodes"]
+        # a world's episodes are numbered by episode set, as the learner counts them: K per set
+        assert [(e["episode"], e["missed_actions"]) for e in played] == [(0, 0), (2, 0)], result

@@ -10,6 +10,11 @@ nothing within ``deadline_s`` of the first rollout of an update (killed, stalled
 left out of it: one warning line names it, its rollout counts as lost, and the update goes on
 with the others. Its rollouts of older weights, when they come, are dropped (counted); a
 restarted actor takes the newest weights (latched) and its next rollout joins again.
+
+:meth:`ActorsTrainerNode.timing` splits an update's cycle, on the trainer's clock, into the
+time away (weights out until the first rollout of them is in: weights crossing, acting,
+rollout crossing), the gather (first to last actor's rollout) and learning (the update and
+publishing its weights): what docs/ros.md's lossy-link figures are made of.
 """
 
 from __future__ import annotations
@@ -39,6 +44,9 @@ class ActorsTrainerNode(TrainerNode):
         self.world_starts = np.cumsum([0, *teams])[:-1]  # an actor's first team-wide agent id
         self.pending: dict[int, Rollout] = {}  # actor -> its rollout of the current weights
         self.gather_started = 0.0
+        self.published_at: float | None = None  # when the newest update's weights went out
+        self.first_update_at = 0.0
+        self.phases_s = {"away": 0.0, "gather": 0.0, "learn": 0.0}  # summed over the updates after the first
         super().__init__(learner, namespace, max_lag=0)
         self.episodes_per_end = actors
 
@@ -65,9 +73,27 @@ class ActorsTrainerNode(TrainerNode):
             self.update()
 
     def update(self) -> None:
+        gathered = time.monotonic()
         rollout = join_rollouts(list(self.pending.values()))
         self.pending.clear()
         self.learn_from(rollout, 0)
+        published = time.monotonic()
+        if self.published_at is None:
+            self.first_update_at = published
+        else:
+            for phase, seconds in (("away", self.gather_started - self.published_at),
+                                   ("gather", gathered - self.gather_started), ("learn", published - gathered)):
+                self.phases_s[phase] += seconds
+        self.published_at = published
+
+    def timing(self) -> dict:
+        """Updates per second and the mean seconds an update spends in each phase, over the
+        updates after the first (whose wait includes the actors' start-up)."""
+        timed = self.updates - 1
+        if timed < 1:
+            return {"timed_updates": 0}
+        return {"timed_updates": timed, "updates_per_s": timed / (self.published_at - self.first_update_at)} | {
+            f"{phase}_s": seconds / timed for phase, seconds in self.phases_s.items()}
 
     def report_silence(self) -> None:
         """Also the gather's deadline: actors silent for ``deadline_s`` since an update's first

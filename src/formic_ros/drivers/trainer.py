@@ -147,5 +147,6 @@ def serve_trainer(cfg: TrainConfig, run_dir: Path, resume: bool = True, namespac
             node.report_silence()
         if not stop:  # the last weights reach the hosts before the node goes
             node.weights_pub.wait_for_all_acked(Duration(seconds=2.0))
-    return {"run_dir": str(run_dir), "version": learner.version, "updates": node.updates, "dropped": node.dropped, "lost": node.lost,
-            "seconds": time.monotonic() - started}
+    result = {"run_dir": str(run_dir), "version": learner.version, "updates": node.updates, "dropped": node.dropped,
+              "lost": node.lost, "seconds": time.monotonic() - started}
+    return (result | {"timing": node.timing()}) if actors else result  # actors: the update cycle's phases
