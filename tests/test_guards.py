@@ -67,6 +67,20 @@ def test_after_guard_max_rollbacks_a_fall_is_only_logged():
     assert spent.line == "guard: rolling food 2.0 < 0.6 x best 12.0 (episode 7): no rollback left (2/2 events)"
 
 
+def test_from_guard_restart_on_the_best_starts_again_and_rollbacks_go_to_the_new_best():
+    guard = FallGuard(drop=0.6, window=2, after=0, most=3, lr_factor=0.5, restart=4)
+    # sets 1-4: rolling -, 100, 100, 60 (not below 60); set 5 restarts: the window refills (5, 6),
+    # its first full mean 20 is the new best (not a fall from 100); 10 then falls below 0.6 x 20
+    assert actions(guard, [100, 100, 100, 20, 20, 20, 0]) == [WATCH, BEST, WATCH, WATCH, WATCH, BEST, ROLL_BACK]
+    assert (guard.best, guard.best_episode, guard.events, guard.restarted) == (20.0, 6, 1, True)
+    restored = FallGuard(drop=0.6, window=2, after=0, most=3, lr_factor=0.5, restart=4)
+    restored.load(json.loads(json.dumps(guard.state())))
+    assert restored.state() == guard.state()
+    legacy = {key: value for key, value in guard.state().items() if key != "restarted"}
+    restored.load(legacy)  # a state from before guard_restart existed
+    assert restored.restarted is False
+
+
 def test_a_guard_restored_from_its_state_decides_as_the_original():
     foods = [10, 20, 30, 14, 12, 2, 40, 1, 1]
     whole = FallGuard(drop=0.6, window=2, after=1, most=1, lr_factor=0.5)
@@ -85,7 +99,8 @@ def test_the_guard_is_off_by_default():
 
 
 @pytest.mark.parametrize("settings", [{"guard_drop": 1.0}, {"guard_drop": -0.1}, {"guard_window": 0},
-                                      {"guard_lr_factor": 0.0}, {"filter_initial": 1.5}, {"target_kl": -1.0}])
+                                      {"guard_lr_factor": 0.0}, {"filter_initial": 1.5}, {"target_kl": -1.0},
+                                      {"guard_restart": -1}])
 def test_guard_settings_are_checked(settings):
     with pytest.raises(ValueError):
         make_config("cpu", **settings)

@@ -444,6 +444,23 @@ def test_the_guarded_recipe_is_the_paper_recipe_with_guards_within_five_cpu_hour
     assert (parsed.params["recipe"], parsed.params["seed"]) == ("paper-v2", 1)
 
 
+def test_the_third_version_guards_the_whole_reference_stage_and_hands_on_its_unfiltered_best():
+    """recipes/paper-v3.toml is paper-v2 with the reference stage's guard watching from episode 0
+    and its record restarting at the filter's end (480); nothing else differs."""
+    v2, v3 = load_recipe("paper-v2"), load_recipe("paper-v3")
+    assert [(s.name, s.episodes, s.start, s.average) for s in v3.stages] == \
+        [(s.name, s.episodes, s.start, s.average) for s in v2.stages]
+    assert (v3.candidates, v3.validation) == (v2.candidates, v2.validation)
+    differ = {}
+    for i, stage in enumerate(v3.stages):
+        new, old = stage_config(v3, i, Path("run"), seed=1), stage_config(v2, i, Path("run"), seed=1)
+        differ[stage.name] = {k: (getattr(old, k), getattr(new, k)) for k in new.to_dict()
+                              if getattr(new, k) != getattr(old, k)}
+    assert differ["reference"] == {"guard_after": (480, 0), "guard_restart": (0, 480)}
+    assert all(not changes for name, changes in differ.items() if name != "reference")
+    assert "1, 2, 3, 4, 5, 6, 7, 8" in v3.text
+
+
 def costed_smoke(tmp_path: Path) -> Path:
     """The smoke recipe with planned costs (CPU-seconds per episode: first 10, middle 20, last 30,
     a validation episode 5) and a first stage of 10 episodes, long enough to measure its own."""

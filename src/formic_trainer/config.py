@@ -84,6 +84,7 @@ class TrainConfig:
     guard_drop: float = 0.0  # roll back when the rolling food < guard_drop x its best (0 = off)
     guard_window: int = 5  # episode sets in the rolling food mean
     guard_after: int = 0  # watch the episode sets played from this episode on
+    guard_restart: int = 0  # from this episode on the guard's best starts again (0 = never): best.pt after it
     guard_max: int = 3  # rollbacks at most; after them the guard only logs
     guard_lr_factor: float = 0.5  # each rollback multiplies the learning rate by this
     # Run
@@ -104,8 +105,8 @@ class TrainConfig:
         if not 0.0 <= self.guard_drop < 1.0 or not 0.0 < self.guard_lr_factor <= 1.0:
             raise ValueError(f"guard_drop must be in [0, 1) (0 = off) and guard_lr_factor in (0, 1], not "
                              f"{self.guard_drop} and {self.guard_lr_factor}")
-        if self.target_kl < 0 or self.guard_window < 1 or self.guard_max < 0 or self.guard_after < 0:
-            raise ValueError("target_kl, guard_max and guard_after must be >= 0 and guard_window >= 1")
+        if self.target_kl < 0 or self.guard_window < 1 or self.guard_max < 0 or self.guard_after < 0 or self.guard_restart < 0:
+            raise ValueError("target_kl, guard_max, guard_after and guard_restart must be >= 0 and guard_window >= 1")
         reward_config(self)  # a bad reward_overrides fails here, not at the first episode
         if len(self.world_sizes) < len(self.teams):
             raise ValueError(f"{len(self.teams)} teams but {len(self.world_sizes)} world_sizes: give one side "

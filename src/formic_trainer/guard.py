@@ -5,7 +5,11 @@ from foraging within a few dozen episode sets and not come back. The guard watch
 mean of the training food over the last ``guard_window`` episode sets (from episode
 ``guard_after`` on); at every new best it asks for ``best.pt``, and when the rolling mean falls
 below ``guard_drop`` x the best it asks for a rollback to ``best.pt`` at a lower learning rate,
-at most ``guard_max`` times. It decides only; the learner writes, loads and logs, and keeps the
+at most ``guard_max`` times. From episode ``guard_restart`` on (if set) its record starts again:
+the best and the window of the sets before are forgotten, so ``best.pt`` becomes the best of the
+sets played from there on (a stage whose action filter ends there hands on weights that forage
+without it, while the sets before were still guarded); rollbacks so far and the learning rate's
+factor stay. It decides only; the learner writes, loads and logs, and keeps the
 guard's :meth:`FallGuard.state` in its checkpoints so that a resumed run decides as an
 uninterrupted one.
 """
@@ -28,8 +32,10 @@ class Verdict:
 
 
 class FallGuard:
-    def __init__(self, drop: float, window: int, after: int, most: int, lr_factor: float):
+    def __init__(self, drop: float, window: int, after: int, most: int, lr_factor: float, restart: int = 0):
         self.drop, self.window_size, self.after, self.most, self.factor = drop, window, after, most, lr_factor
+        self.restart = restart  # 0 = never
+        self.restarted = False
         self.window: list[float] = []  # the food of the last episode sets watched
         self.best: float | None = None  # the best full-window rolling mean ...
         self.best_episode = 0  # ... and the episode it was reached at
@@ -41,7 +47,8 @@ class FallGuard:
         """The guard a TrainConfig asks for (None with ``guard_drop`` 0)."""
         if cfg.guard_drop <= 0:
             return None
-        return cls(cfg.guard_drop, cfg.guard_window, cfg.guard_after, cfg.guard_max, cfg.guard_lr_factor)
+        return cls(cfg.guard_drop, cfg.guard_window, cfg.guard_after, cfg.guard_max, cfg.guard_lr_factor,
+                   cfg.guard_restart)
 
     def observe(self, episode: int, food: float) -> Verdict:
         """An episode set has ended with ``episode`` episodes played and mean food ``food``
@@ -49,6 +56,8 @@ class FallGuard:
         episode ``after`` on are)."""
         if episode <= self.after:
             return Verdict(WATCH)
+        if self.restart and episode > self.restart and not self.restarted:  # the first set played from there
+            self.window, self.best, self.restarted = [], None, True
         self.window = [*self.window, float(food)][-self.window_size:]
         if len(self.window) < self.window_size:
             return Verdict(WATCH)
@@ -70,8 +79,9 @@ class FallGuard:
     def state(self) -> dict:
         """Everything :meth:`observe` depends on, for a checkpoint's progress."""
         return {"window": list(self.window), "best": self.best, "best_episode": self.best_episode,
-                "events": self.events, "lr_factor": self.lr_factor}
+                "events": self.events, "lr_factor": self.lr_factor, "restarted": self.restarted}
 
     def load(self, state: dict) -> None:
         self.window, self.best, self.best_episode = list(state["window"]), state["best"], state["best_episode"]
         self.events, self.lr_factor = state["events"], state["lr_factor"]
+        self.restarted = state.get("restarted", False)  # states written before guard_restart existed

@@ -18,7 +18,7 @@ _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]*")
 # TrainConfig (start, end) schedules counted in a stage's episodes: a scaled recipe scales them
 SCHEDULES = (("filter_anneal_start", "filter_anneal_end"), ("curriculum_start", "curriculum_end"))
 # ... and the episode the fall guard starts watching at
-EPISODE_SETTINGS = ("guard_after",)
+EPISODE_SETTINGS = ("guard_after", "guard_restart")
 
 
 def _keys(table: dict, where: str, required: set[str], optional: set[str] = frozenset()) -> dict:
