@@ -28,8 +28,7 @@ import formic_topics as topics
 from formic_trainer.learner import Learner
 from formic_trainer.rollout import Rollout, join_rollouts
 
-from ..convert import decode_rollout
-from .trainer import SILENCE_S, TrainerNode
+from .trainer import TrainerNode
 
 
 class ActorsTrainerNode(TrainerNode):
@@ -54,12 +53,7 @@ class ActorsTrainerNode(TrainerNode):
         return int(np.searchsorted(self.world_starts, rollout.agent_ids[0], side="right") - 1)
 
     def on_rollout(self, msg: RolloutMsg) -> None:
-        self.received += 1
-        self.heard_at, self.silence_report_s = time.monotonic(), SILENCE_S
-        try:
-            rollout = decode_rollout(msg)
-        except ValueError as exc:
-            self.drop(f"a malformed rollout: {exc}")
+        if (rollout := self.take(msg)) is None:
             return
         actor = self.actor_of(rollout)
         if rollout.weights_version != self.learner.version or actor in self.pending:

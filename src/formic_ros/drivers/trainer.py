@@ -27,6 +27,7 @@ from formic_agent.checkpoint import state_dict_bytes
 import formic_topics as topics
 from formic_trainer.config import TrainConfig
 from formic_trainer.learner import Learner
+from formic_trainer.rollout import Rollout
 
 from .. import qos
 from ..convert import WeightsPayload, decode_rollout, encode_weights
@@ -62,13 +63,19 @@ class TrainerNode(Node):
         self.weights_pub.publish(encode_weights(WeightsPayload(
             self.learner.version, data, hashlib.sha256(data).hexdigest()[:12], self.learner.net.config.to_dict())))
 
-    def on_rollout(self, msg: RolloutMsg) -> None:
+    def take(self, msg: RolloutMsg) -> Rollout | None:
+        """A rollout message heard (counted, the silence clock reset) and decoded; None, and
+        counted as dropped, when it does not decode."""
         self.received += 1
         self.heard_at, self.silence_report_s = time.monotonic(), SILENCE_S
         try:
-            rollout = decode_rollout(msg)
+            return decode_rollout(msg)
         except ValueError as exc:
             self.drop(f"a malformed rollout: {exc}")
+            return None
+
+    def on_rollout(self, msg: RolloutMsg) -> None:
+        if (rollout := self.take(msg)) is None:
             return
         lag = self.learner.version - rollout.weights_version
         if lag > self.max_lag:
