@@ -10,8 +10,10 @@ the ``all`` row is their sum. With ``--split`` each effect is also split by the 
 gradient comes from: where JOIN is valid, where it was tried and is not, where a move was chosen
 and JOIN is not valid (the three add up to the whole).
 
-Usage: .venv/bin/python analysis/join_pressure.py --model models/formic_paper.pt \
-           --optimizer-state models/training/paper-sharp2/latest.pt [--set valid_coef=0.1]
+Usage (the run's checkpoint is in the history, no longer in the tree):
+       git show 57b96f9:models/training/paper-sharp2/latest.pt > /tmp/paper-sharp2.pt
+       .venv/bin/python analysis/join_pressure.py --model models/formic_paper.pt \
+           --optimizer-state /tmp/paper-sharp2.pt [--set valid_coef=0.1]
 """
 
 from __future__ import annotations

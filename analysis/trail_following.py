@@ -12,7 +12,8 @@ stood on when it acts (SPEC §1), so its own fresh trail never counts as the cel
 C-SAF-11 never reads the ForMIC pheromone (its homing shows what the geometry alone gives) and
 random walkers give the floor.
 
-    .venv/bin/python analysis/trail_following.py --model models/training/paper-ref/latest.pt \
+    git show 57b96f9:models/training/paper-ref/latest.pt > /tmp/paper-ref.pt  # in the history only
+    .venv/bin/python analysis/trail_following.py --model /tmp/paper-ref.pt \
         --teams 32,64 --count 4 --out models/trail_following.json
 """
 

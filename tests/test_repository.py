@@ -2,11 +2,9 @@
 
 Each check is a function of a plain list of tracked files (path and size, or path and text), so
 every check is tested on a tiny made-up list as well as run on the real tree (``git ls-files``,
-so it holds in a fresh clone too). Two manifests steer them: ``models/training/in-progress.txt``
-names the training runs still running (each may track its own checkpoints), and
-``models/training/pending-removal.txt`` the files still to be removed by a later change (one
-change may not delete more than its diff limit allows); both are one path per line, ``#``
-starting a comment.
+so it holds in a fresh clone too). One manifest steers them: ``models/training/in-progress.txt``
+names the training runs still running (each may track its own checkpoints), one path per line,
+``#`` starting a comment.
 """
 
 from __future__ import annotations
@@ -18,10 +16,9 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 IN_PROGRESS = ROOT / "models" / "training" / "in-progress.txt"
-PENDING = ROOT / "models" / "training" / "pending-removal.txt"
 
 MB = 1_000_000
-CHECKPOINT_BUDGET = 30 * MB  # .pt files outside models/*.pt, the runs in progress and the pending list
+CHECKPOINT_BUDGET = 30 * MB  # .pt files outside models/*.pt and the runs in progress
 LARGEST_FILE = 10 * MB
 TEXT_SUFFIXES = (".json", ".jsonl", ".txt", ".md", ".log", ".csv", ".toml", ".yaml", ".yml")
 # an absolute path of the machine a file was made on (not part of a URL or a relative path)
@@ -55,31 +52,25 @@ def inside(path: str, folders: list[str]) -> bool:
     return any(path.startswith(folder + "/") for folder in folders)
 
 
-def checkpoints_over_budget(sizes: dict[str, int], in_progress: list[str], pending: set[str],
+def checkpoints_over_budget(sizes: dict[str, int], in_progress: list[str],
                             budget: int = CHECKPOINT_BUDGET) -> list[str]:
     """The stray checkpoints (largest first) when together they exceed ``budget``, else []."""
     shipped = re.compile(r"models/[^/]+\.pt")
     stray = [p for p in sizes if p.endswith(".pt") and not shipped.fullmatch(p)
-             and not inside(p, in_progress) and p not in pending]
+             and not inside(p, in_progress)]
     if sum(sizes[p] for p in stray) <= budget:
         return []
     return sorted(stray, key=lambda p: -sizes[p])
 
 
-def oversized(sizes: dict[str, int], pending: set[str], limit: int = LARGEST_FILE) -> list[str]:
-    """Files larger than ``limit`` bytes, except those pending removal."""
-    return sorted(p for p, size in sizes.items() if size > limit and p not in pending)
+def oversized(sizes: dict[str, int], limit: int = LARGEST_FILE) -> list[str]:
+    """Files larger than ``limit`` bytes."""
+    return sorted(p for p, size in sizes.items() if size > limit)
 
 
-def with_machine_paths(texts: dict[str, str], pending: set[str]) -> list[str]:
-    """JSON and text files that hold an absolute path of a machine, except those pending removal."""
-    return sorted(p for p, text in texts.items()
-                  if p.endswith(TEXT_SUFFIXES) and p not in pending and MACHINE_PATH.search(text))
-
-
-def stale_pending(pending: set[str], tracked: set[str]) -> list[str]:
-    """Pending-removal lines that name a file no longer tracked: the list only shrinks."""
-    return sorted(pending - tracked)
+def with_machine_paths(texts: dict[str, str]) -> list[str]:
+    """JSON and text files that hold an absolute path of a machine."""
+    return sorted(p for p, text in texts.items() if p.endswith(TEXT_SUFFIXES) and MACHINE_PATH.search(text))
 
 
 def disallowed_in_progress(tracked: list[str], in_progress: list[str]) -> list[str]:
@@ -95,21 +86,17 @@ def tree_sizes() -> dict[str, int]:
 
 
 def test_stray_checkpoints_stay_within_budget():
-    stray = checkpoints_over_budget(tree_sizes(), read_manifest(IN_PROGRESS), set(read_manifest(PENDING)))
+    stray = checkpoints_over_budget(tree_sizes(), read_manifest(IN_PROGRESS))
     assert stray == [], f"tracked checkpoints over {CHECKPOINT_BUDGET // MB} MB, largest first: {stray[:20]}"
 
 
 def test_no_tracked_file_is_over_10_mb():
-    assert oversized(tree_sizes(), set(read_manifest(PENDING))) == []
+    assert oversized(tree_sizes()) == []
 
 
 def test_no_json_or_text_file_holds_a_machine_path():
     texts = {p: (ROOT / p).read_text(errors="replace") for p in tracked_files() if p.endswith(TEXT_SUFFIXES)}
-    assert with_machine_paths(texts, set(read_manifest(PENDING))) == []
-
-
-def test_pending_removal_names_only_tracked_files():
-    assert stale_pending(set(read_manifest(PENDING)), set(tracked_files())) == []
+    assert with_machine_paths(texts) == []
 
 
 def test_runs_in_progress_track_only_checkpoints_and_records():
@@ -120,7 +107,7 @@ def test_the_manifests_name_the_run_in_progress():
     runs = read_manifest(IN_PROGRESS)
     assert runs and all(run.startswith("models/training/") and "/" not in run[len("models/training/"):]
                         for run in runs), runs  # whole run folders, one level under models/training
-    assert "models/training/cpu-v3/latest.pt" not in read_manifest(PENDING)  # a resume test's fixture
+    assert (ROOT / "models/training/cpu-v3/latest.pt").exists()  # a resume test's fixture
 
 
 # --- each check on a tiny made-up tree -----------------------------------------------------------
@@ -135,31 +122,25 @@ def test_read_manifest_drops_comments_blanks_and_trailing_slashes(tmp_path):
 def test_checkpoints_over_budget_counts_only_stray_checkpoints():
     sizes = {"models/formic.pt": 50, "models/training/a/model.pt": 8, "models/training/a/x/latest.pt": 4,
              "models/training/live/latest.pt": 40, "models/training/old/mean.pt": 30, "eval/e.json": 99}
-    assert checkpoints_over_budget(sizes, ["models/training/live"], {"models/training/old/mean.pt"}, 12) == []
-    assert checkpoints_over_budget(sizes, ["models/training/live"], {"models/training/old/mean.pt"}, 11) == [
-        "models/training/a/model.pt", "models/training/a/x/latest.pt"]
-    assert checkpoints_over_budget(sizes, [], set(), 81) == [
+    assert checkpoints_over_budget(sizes, ["models/training/live"], 42) == []
+    assert checkpoints_over_budget(sizes, ["models/training/live"], 41) == [
+        "models/training/old/mean.pt", "models/training/a/model.pt", "models/training/a/x/latest.pt"]
+    assert checkpoints_over_budget(sizes, [], 81) == [
         "models/training/live/latest.pt", "models/training/old/mean.pt", "models/training/a/model.pt",
         "models/training/a/x/latest.pt"]
 
 
-def test_oversized_spares_pending_files():
+def test_oversized_names_files_over_the_limit_only():
     sizes = {"a.jsonl": 11, "b.pt": 10, "c.json": 12}
-    assert oversized(sizes, set(), 10) == ["a.jsonl", "c.json"]
-    assert oversized(sizes, {"c.json"}, 10) == ["a.jsonl"]
+    assert oversized(sizes, 10) == ["a.jsonl", "c.json"]
+    assert oversized(sizes, 12) == []
 
 
 def test_with_machine_paths_finds_absolute_paths_in_text_files_only():
     texts = {"run/config.json": '{"init": "/work/main/models/a.pt"}', "run/train.log": "from /root/x",
              "run/results.md": "Scenarios: models/training/run/validation", "src/a.py": "'/work/x'",
              "README.md": "see https://host/home/page and ~/work/x", "run/old.json": '"/tmp/x"'}
-    assert with_machine_paths(texts, set()) == ["run/config.json", "run/old.json", "run/train.log"]
-    assert with_machine_paths(texts, {"run/old.json"}) == ["run/config.json", "run/train.log"]
-
-
-def test_stale_pending_names_files_already_gone():
-    assert stale_pending({"a.pt", "b.pt"}, {"a.pt", "c.pt"}) == ["b.pt"]
-    assert stale_pending({"a.pt"}, {"a.pt"}) == []
+    assert with_machine_paths(texts) == ["run/config.json", "run/old.json", "run/train.log"]
 
 
 def test_disallowed_in_progress_keeps_a_run_to_checkpoints_and_records():
