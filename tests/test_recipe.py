@@ -461,6 +461,33 @@ def test_the_third_version_guards_the_whole_reference_stage_and_hands_on_its_unf
     assert "1, 2, 3, 4, 5, 6, 7, 8" in v3.text
 
 
+def test_the_fourth_version_puts_the_reference_stages_wheels_on_the_schedule_clock():
+    """recipes/paper-v4.toml is paper-v3 with the reference stage 800 episodes long, its filter and
+    highways over 600 schedule episodes on a clock that holds at 0.85 x the recent peak, the
+    guard's restart at 600; its basics stage is paper-v3's (so v3's basics stages are reused)."""
+    v3, v4 = load_recipe("paper-v3"), load_recipe("paper-v4")
+    assert [(s.name, s.episodes, s.start, s.average) for s in v4.stages] == \
+        [(s.name, 800 if s.name == "reference" else s.episodes, s.start, s.average) for s in v3.stages]
+    assert (v4.candidates, v4.validation) == (v3.candidates, v3.validation)
+    assert v4.stages[0] == v3.stages[0]
+    differ = {}
+    for i, stage in enumerate(v4.stages):
+        new, old = stage_config(v4, i, Path("run"), seed=1), stage_config(v3, i, Path("run"), seed=1)
+        differ[stage.name] = {k: (getattr(old, k), getattr(new, k)) for k in new.to_dict()
+                              if getattr(new, k) != getattr(old, k)}
+    assert differ["reference"] == {"filter_anneal_end": (480, 600), "curriculum_end": (480, 600),
+                                   "anneal_hold": (0.0, 0.85), "guard_restart": (480, 600),
+                                   "total_episodes": (640, 800)}
+    # the later stages inherit the highways' end, inert there (no curriculum from the crowd stage on)
+    assert all(changes == {"curriculum_end": (480, 600)} for name, changes in differ.items()
+               if name not in ("basics", "reference"))
+    assert not any(stage_config(v4, i, Path("run"), seed=1).curriculum for i in range(2, len(v4.stages)))
+    cpu_seconds = {"basics": 7.7, "reference": 7.7, "crowd": 18, "nonlearning": 4.7, "novalid": 3.9, "novalid128": 4.6}
+    hours = sum(cpu_seconds[s.name] * s.episodes for s in v4.stages) / 3600 + 0.4  # validation: ~0.4 h
+    assert hours == pytest.approx(4.82, abs=0.01) and hours <= v4.budget_cpu_hours == 5.0
+    assert "1, 2, 3, 4, 5, 6, 7, 8" in v4.text
+
+
 def costed_smoke(tmp_path: Path) -> Path:
     """The smoke recipe with planned costs (CPU-seconds per episode: first 10, middle 20, last 30,
     a validation episode 5) and a first stage of 10 episodes, long enough to measure its own."""

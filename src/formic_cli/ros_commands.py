@@ -248,10 +248,12 @@ def train_ros(preset, train_config, overrides, as_json, actors, **options) -> No
     """Distributed training: trainer node, world (training scenarios) and a learning host as
     separate ROS processes; same settings and seeds give `formic train`'s learning curve."""
     from formic_ros.launch.launcher import TrainRunOptions, launch_training
+    from formic_trainer.config import require_distributable
 
     with click_errors(RuntimeError, ValueError, TypeError, FileNotFoundError,
                       interrupted="interrupted: every process stopped (the trainer saved its checkpoint)"):
         cfg = training_config(preset, train_config, overrides)
+        require_distributable(cfg)
         run_options = TrainRunOptions(config=cfg, **options, on_episode=None if as_json else _print_training_episode)
         if actors > 1:
             from formic_ros.launch.actors import launch_actors_training

@@ -127,12 +127,14 @@ class Actor:
         """Steps in the current chunk."""
         return len(self.chunk["actions"])
 
-    def start_episode(self, episode: int) -> None:
+    def start_episode(self, episode: int, schedule: int | None = None) -> None:
         """A new episode (global number ``episode``): fresh LSTM states, and which agents act
-        unfiltered in it (filter annealing), and the episode's own random streams."""
+        unfiltered in it (filter annealing at ``schedule``, the schedule clock's episode; default
+        ``episode``), and the episode's own random streams."""
         self.episode = episode
         self.generator, self.rng = actor_streams(self.cfg, episode)
-        self.unfiltered = self.rng.random(self.team)[self.ids] >= filter_probability(self.cfg, episode)
+        anneal_at = episode if schedule is None else schedule
+        self.unfiltered = self.rng.random(self.team)[self.ids] >= filter_probability(self.cfg, anneal_at)
         # the replacements follow in team order, which no split reproduces: a part of the team
         # draws them from a stream of its own
         self.replace_rng = self.rng if self.whole_team else actor_streams(self.cfg, episode, self.first_agent)[1]

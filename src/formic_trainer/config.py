@@ -55,6 +55,10 @@ class TrainConfig:
     filter_anneal_end: int = 0  # ... filter_initial at filter_anneal_start to filter_final at filter_anneal_end
     filter_initial: float = 1.0
     filter_final: float = 1.0
+    # the schedule clock (formic_trainer.schedule): the filter's and highways' schedules pause over
+    # episode sets whose rolling food < anneal_hold x its peak over the last anneal_memory sets (0 = off)
+    anneal_hold: float = 0.0
+    anneal_memory: int = 20
     init_weights: str = ""  # start the network from this checkpoint (warm start / fine-tune)
     weight_average: float = 0.0  # decay of a moving average of the weights, written as averaged.pt (0 = off)
     optimizer: Literal["nadam", "adam"] = "nadam"
@@ -105,6 +109,9 @@ class TrainConfig:
         if not 0.0 <= self.guard_drop < 1.0 or not 0.0 < self.guard_lr_factor <= 1.0:
             raise ValueError(f"guard_drop must be in [0, 1) (0 = off) and guard_lr_factor in (0, 1], not "
                              f"{self.guard_drop} and {self.guard_lr_factor}")
+        if not 0.0 <= self.anneal_hold < 1.0 or self.anneal_memory < 1:
+            raise ValueError(f"anneal_hold must be in [0, 1) (0 = off) and anneal_memory >= 1, not "
+                             f"{self.anneal_hold} and {self.anneal_memory}")
         if self.target_kl < 0 or self.guard_window < 1 or self.guard_max < 0 or self.guard_after < 0 or self.guard_restart < 0:
             raise ValueError("target_kl, guard_max, guard_after and guard_restart must be >= 0 and guard_window >= 1")
         reward_config(self)  # a bad reward_overrides fails here, not at the first episode
@@ -114,6 +121,18 @@ class TrainConfig:
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
+
+
+def require_distributable(cfg: TrainConfig) -> None:
+    """Distributed training (``formic train-ros``, ``formic trainer``) runs the settings whose
+    inputs its processes see; a ValueError names the one it cannot, and what to do instead."""
+    if cfg.imitate:
+        raise ValueError("imitation runs its demonstrator beside the training worlds; train it in-process "
+                         "(formic train)")
+    if cfg.anneal_hold:
+        raise ValueError("anneal_hold moves the filter's and highways' schedules with the trainer's food record, "
+                         "which the training worlds do not see; train it in-process (formic train) or set "
+                         "anneal_hold=0")
 
 
 def reward_config(cfg: TrainConfig) -> RewardConfig:

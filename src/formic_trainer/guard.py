@@ -50,13 +50,16 @@ class FallGuard:
         return cls(cfg.guard_drop, cfg.guard_window, cfg.guard_after, cfg.guard_max, cfg.guard_lr_factor,
                    cfg.guard_restart)
 
-    def observe(self, episode: int, food: float) -> Verdict:
+    def observe(self, episode: int, food: float, schedule: int | None = None) -> Verdict:
         """An episode set has ended with ``episode`` episodes played and mean food ``food``
         over its worlds. Sets ending at or before ``after`` are not watched (those played from
-        episode ``after`` on are)."""
-        if episode <= self.after:
+        episode ``after`` on are). ``after`` and ``restart`` are read on ``schedule``, the
+        schedule clock's episode the set was played at plus its episodes (default: ``episode``;
+        the two differ only when the clock holds, :mod:`formic_trainer.schedule`)."""
+        at = episode if schedule is None else schedule
+        if at <= self.after:
             return Verdict(WATCH)
-        if self.restart and episode > self.restart and not self.restarted:  # the first set played from there
+        if self.restart and at > self.restart and not self.restarted:  # the first set played from there
             self.window, self.best, self.restarted = [], None, True
         self.window = [*self.window, float(food)][-self.window_size:]
         if len(self.window) < self.window_size:

@@ -21,6 +21,7 @@ from .algorithm import check_update_precision, make_optimizer, set_learning_rate
 from .config import TrainConfig, plain
 from .guard import BEST, ROLL_BACK, WATCH, FallGuard, Verdict
 from .rollout import Rollout
+from .schedule import ScheduleClock
 
 # settings a run may change when it resumes
 RESUMABLE = frozenset({"total_episodes", "threads", "checkpoint_every", "init_weights", "weight_average"})
@@ -55,6 +56,7 @@ class Learner:
         self.cpu_seconds = 0.0
         self.averaged = None  # the moving average of the weights (a network), when weight_average > 0
         self.guard = FallGuard.from_config(cfg)  # None when guard_drop is 0
+        self.schedule = ScheduleClock.from_config(cfg)  # the episode the filter's and highways' schedules read
         latest = self.run_dir / "latest.pt"
         stored_average = None
         if resume and latest.exists():
@@ -97,6 +99,10 @@ class Learner:
             setattr(self, key, progress[key])
         if self.guard is not None and "guard" in progress:
             self.guard.load(progress["guard"])
+        if "schedule" in progress:
+            self.schedule.load(progress["schedule"])
+        else:  # a checkpoint from before the schedule clock: it read the episode count
+            self.schedule.episode = self.episode
         self.log(f"resumed from {path}: episode {self.episode}, update {self.updates}")
         return payload.get("averaged_state_dict")
 
@@ -122,7 +128,7 @@ class Learner:
                      cpu_seconds: float = 0.0) -> None:
         """``episodes`` environment episodes have ended (one episode set), taking ``seconds`` of
         wall clock and ``cpu_seconds`` of CPU: their statistics go to the log under ``train/``,
-        the fall guard sees their ``food_mean``, and the checkpoint is written every
+        the schedule clock and the fall guard see their ``food_mean``, and the checkpoint is written every
         ``checkpoint_every`` and after each step the guard takes (so that no rollback lies between
         the last checkpoint and a best.pt newer than it: a resumed run rewrites that best.pt as it was)."""
         self.episode += episodes
@@ -133,7 +139,10 @@ class Learner:
         if self.seconds > 0:
             self.writer.add_scalar("train/agent_steps_per_s", self.env_steps / self.seconds, self.episode)
         self.writer.flush()
-        verdict = Verdict(WATCH) if self.guard is None else self.guard.observe(self.episode, stats["food_mean"])
+        played_at = self.schedule.episode
+        self.schedule.observe(episodes, stats.get("food_mean"))
+        verdict = (Verdict(WATCH) if self.guard is None
+                   else self.guard.observe(self.episode, stats["food_mean"], schedule=played_at + episodes))
         if verdict.action == BEST:
             self.save("best.pt")
         if verdict.line:
@@ -144,8 +153,11 @@ class Learner:
             self.save()
 
     def roll_back(self) -> None:
-        """The weights of ``best.pt`` with a fresh optimiser (the guard lowers the learning rate)."""
-        self.net.load_state_dict(read_checkpoint(self.run_dir / "best.pt")["state_dict"])
+        """The weights of ``best.pt`` with a fresh optimiser (the guard lowers the learning rate),
+        and the schedule clock where it stood with them."""
+        best = read_checkpoint(self.run_dir / "best.pt")
+        self.net.load_state_dict(best["state_dict"])
+        self.schedule.roll_back(best["progress"].get("schedule", {"episode": best["progress"]["episode"]}))
         self.optimizer = make_optimizer(self.net, self.cfg)
         set_learning_rate(self.optimizer, self.cfg, self.updates, self.guard.lr_factor)
 
@@ -158,6 +170,7 @@ class Learner:
         ``averaged.pt``, written after ``latest.pt`` (which carries the average too, so a crash
         between the two loses nothing)."""
         progress = {key: getattr(self, key) for key in PROGRESS}
+        progress["schedule"] = self.schedule.state()
         if self.guard is not None:
             progress["guard"] = self.guard.state()
         averaged = {} if self.averaged is None else {"averaged_state_dict": self.averaged.state_dict()}

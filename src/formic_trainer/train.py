@@ -43,6 +43,7 @@ class Trainer:
         """Every meta-agent world plays one episode; the learner updates every rollout chunk."""
         cfg, envs, actor, learner = self.cfg, self.envs, self.actor, self.learner
         started, cpu_started, episode = time.time(), time.process_time(), learner.episode
+        schedule = learner.schedule.episode
         stats: dict[str, list[float]] = {}
 
         def learn(rollout: Rollout, env_steps: int) -> None:
@@ -50,12 +51,13 @@ class Trainer:
                 stats.setdefault(key, []).append(value)
             actor.weights_version = learner.version
 
-        food = play_episode_set(cfg, envs, actor, episode, learn)
+        food = play_episode_set(cfg, envs, actor, episode, learn, schedule)
         result = {key: float(np.mean(values)) for key, values in stats.items()}
         result["food_mean"] = float(food.mean())
         result |= {f"food_env{i}": float(f) for i, f in enumerate(food)}
         result |= {"valid_rate": float(np.mean(actor.valid_rate)), "highway_intensity": envs.highway,
-                   "deposit_strength": envs.deposit, "filter_probability": filter_probability(cfg, episode)}
+                   "deposit_strength": envs.deposit, "filter_probability": filter_probability(cfg, schedule),
+                   "schedule_episode": schedule}
         learner.end_episodes(len(envs.worlds), result, seconds=time.time() - started,
                              cpu_seconds=time.process_time() - cpu_started)
         return result
@@ -68,6 +70,8 @@ class Trainer:
             stats = self.run_episode_set()
             sps = learner.env_steps / max(learner.seconds, 1e-9)
             per_env = " ".join(f"{stats[f'food_env{i}']:.0f}" for i in range(len(self.cfg.teams)))
+            held = " held" if learner.schedule.held else ""
+            clock = f" sched {stats['schedule_episode']:.0f}{held}" if self.cfg.anneal_hold else ""
             imitation = (f"imit {stats['imitation']:.3f} agree {stats['expert_agreement']:.2f} | "
                          if "imitation" in stats else "")
             self.log(
@@ -75,7 +79,7 @@ class Trainer:
                 f"loss {stats['loss']:.3f} pi {stats['policy']:.3f} v {stats['value']:.3f} "
                 f"ent {stats['entropy']:.3f} valid {stats['valid_accuracy']:.3f} act-ok {stats['valid_rate']:.2f} | "
                 f"kl {stats['approx_kl']:.4f} upd {stats['update_fraction']:.2f} | "
-                f"{imitation}I_h {stats['highway_intensity']:.2f} | {sps:,.0f} agent-steps/s | "
+                f"{imitation}I_h {stats['highway_intensity']:.2f}{clock} | {sps:,.0f} agent-steps/s | "
                 f"{learner.seconds / 60:.1f} min ({learner.cpu_seconds / 60:.1f} CPU)"
             )
         self.close()
@@ -85,11 +89,12 @@ class Trainer:
 
 
 def play_episode_set(cfg: TrainConfig, envs: MetaAgents, actor: Actor, episode: int,
-                     on_rollout: Callable[[Rollout, int], None]) -> np.ndarray:
-    """Every world plays episode ``episode``; each rollout goes to ``on_rollout`` with the
-    agent-steps it stands for. Returns the food each world deposited."""
-    envs.reset(episode)
-    actor.start_episode(episode)
+                     on_rollout: Callable[[Rollout, int], None], schedule: int | None = None) -> np.ndarray:
+    """Every world plays episode ``episode`` (the filter's and highways' schedules read
+    ``schedule``, default ``episode``); each rollout goes to ``on_rollout`` with the agent-steps
+    it stands for. Returns the food each world deposited."""
+    envs.reset(episode, schedule)
+    actor.start_episode(episode, schedule)
     food = np.zeros(len(envs.worlds))
     food_before = 0.0  # at the chunk's start
     frame = envs.observe()

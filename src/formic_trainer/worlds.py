@@ -94,10 +94,12 @@ class MetaAgents:
         self.rewards: list[np.ndarray] = []  # each world's last step's (zeros at an episode's start)
         self._seen: list[tuple[np.ndarray, np.ndarray]] = []  # each world's last (observations, valid)
 
-    def reset(self, episode: int) -> None:
+    def reset(self, episode: int, schedule: int | None = None) -> None:
         """New scenarios for every world, drawn from the episode's own stream (a resumed run
-        draws what an uninterrupted one would); curriculum intensities from the global episode."""
-        scenarios, self.highway, self.deposit = sample_scenarios(self.cfg, scenario_rng(self.cfg, episode), episode)
+        draws what an uninterrupted one would); curriculum intensities at ``schedule`` (the
+        schedule clock's episode; default the global episode)."""
+        scenarios, self.highway, self.deposit = sample_scenarios(
+            self.cfg, scenario_rng(self.cfg, episode), episode if schedule is None else schedule)
         self.worlds = [World(scenario) for scenario in scenarios]
         for feedback, team in zip(self.feedback, self.cfg.teams):
             feedback.reset(team)

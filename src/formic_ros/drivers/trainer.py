@@ -25,7 +25,7 @@ from rclpy.node import Node
 
 from formic_agent.checkpoint import state_dict_bytes
 import formic_topics as topics
-from formic_trainer.config import TrainConfig
+from formic_trainer.config import TrainConfig, require_distributable
 from formic_trainer.learner import Learner
 from formic_trainer.rollout import Rollout
 
@@ -136,9 +136,7 @@ def serve_trainer(cfg: TrainConfig, run_dir: Path, resume: bool = True, namespac
     checkpoint is saved on every exit but a SIGKILL (and every ``cfg.checkpoint_every``
     episodes, atomically). ``actors`` > 0: each update waits for every actor's rollout, at most
     ``actor_deadline_s`` after the first (:mod:`formic_ros.drivers.actors_trainer`)."""
-    if cfg.imitate:
-        raise ValueError("imitation runs its demonstrator beside the training worlds; train it in-process "
-                         "(formic train)")
+    require_distributable(cfg)
     started = time.monotonic()
     learner = Learner(cfg, run_dir, resume=resume, log=log)
     with stop_requests() as stop, contextlib.closing(learner), ros_session(domain_id, interrupt=False) as executor:

@@ -54,11 +54,13 @@ def serve_training_world(
     ``world_index``: an actor's world (``formic train-ros --actors K``): world ``world_index``
     of each episode set's meta-agent worlds, whose global episodes step by their number, as
     ``formic train`` counts them."""
+    from formic_trainer.config import require_distributable
     from formic_trainer.worlds import sample_scenarios, scenario_rng
 
     from ..env import ros_session
     from .lock import world_lock
 
+    require_distributable(cfg)
     if world_index is None:
         require_one_world(cfg)
     stride = 1 if world_index is None else len(cfg.teams)
