@@ -15,36 +15,35 @@ import argparse
 import json
 import os
 import signal
-import subprocess
 import sys
-import time
 
 if __package__ in (None, ""):
     sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-from benchmarks.netsim import FORMIC, Link, _json_lines, _kill_all, _link_environments  # noqa: E402
+from benchmarks.netsim import Link, _json_lines, _link_environments, run_on_link  # noqa: E402
 
 ACTORS = 2
 
 
-def actors_link_config(worlds: int = ACTORS, rollout_steps: int = 16):
-    """``worlds`` 4-agent 20x20 worlds, episodes of two ``rollout_steps``-step rollouts (the cpu preset)."""
+def actors_link_config(worlds: int = ACTORS, rollout_steps: int = 16, agents: int = 4, size: int = 20):
+    """``worlds`` worlds of ``agents`` agents on a ``size`` square, episodes of two
+    ``rollout_steps``-step rollouts (the cpu preset: every agent learns)."""
     from formic_trainer.config import make_config
 
-    return make_config("cpu", seed=3, teams=(4,) * worlds, world_sizes=((20, 20),) * worlds,
+    return make_config("cpu", seed=3, teams=(agents,) * worlds, world_sizes=((size, size),) * worlds,
                        episode_steps=2 * rollout_steps, rollout_steps=rollout_steps, team_reward=0.25)
 
 
 def actors_across_link(episodes: int = 4, delay_ms: float = 20.0, loss: float = 0.02, link_seed: int = 1,
-                       rollout_steps: int = 16, domain_id: int = 149, prefix: str = "fxa", net: int = 219,
-                       limit_s: float = 240.0, workdir: str = "/tmp") -> dict:
+                       rollout_steps: int = 16, agents: int = 4, size: int = 20, domain_id: int = 149,
+                       prefix: str = "fxa", net: int = 219, limit_s: float = 240.0, workdir: str = "/tmp") -> dict:
     """``formic trainer --actors 2`` in namespace a, ``formic actor --actor 0`` and ``--actor 1``
     in b, ``episodes`` episodes per actor of :func:`actors_link_config` over a link with
     ``delay_ms`` each way and ``loss``. Returns the trainer's result (with ``timing``), the
     actors' results, every process's exit code (None: still running at ``limit_s``, then
     killed) and ``link``; the logs stay in ``workdir``. Namespaces and processes are removed
     in any case."""
-    cfg = actors_link_config(rollout_steps=rollout_steps)
+    cfg = actors_link_config(rollout_steps=rollout_steps, agents=agents, size=size)
     chunks = cfg.episode_steps // cfg.rollout_steps
     config_file = os.path.join(workdir, f"{prefix}_config.json")
     with open(config_file, "w") as fh:
@@ -58,36 +57,14 @@ def actors_across_link(episodes: int = 4, delay_ms: float = 20.0, loss: float = 
                                            "--json"])
     with Link(prefix, delay_ms=delay_ms, loss=loss, seed=link_seed, net=net) as link:
         envs = dict(zip("ab", _link_environments(link, domain_id, False, workdir)))
-        procs: dict[str, subprocess.Popen] = {}
-        logs = {name: open(os.path.join(workdir, f"{prefix}_{name}.log"), "w+") for name in commands}
-        try:
-            started = time.monotonic()
-            for name, (side, args) in commands.items():
-                procs[name] = subprocess.Popen(link.exec_in(side) + FORMIC + args, env=envs[side], stdout=logs[name],
-                                               stderr=subprocess.STDOUT, start_new_session=True)
-            end = started + limit_s
-            for proc in procs.values():
-                try:
-                    proc.wait(timeout=max(1.0, end - time.monotonic()))
-                except subprocess.TimeoutExpired:
-                    break
-            elapsed = time.monotonic() - started
-            results = {}
-            for name, log in logs.items():
-                log.seek(0)
-                lines = _json_lines(log.read())
-                results[name] = lines[-1] if lines else None
-            return {"trainer": results.pop("trainer"), "actors": results,
-                    "exit_codes": {name: p.poll() for name, p in procs.items()},
-                    "link": {"delay_ms": delay_ms, "loss": loss, "seed": link_seed, "wall_s": round(elapsed, 1)}}
-        finally:
-            _kill_all(list(procs.values()))
-            for log in logs.values():
-                log.close()
+        texts, exit_codes, elapsed = run_on_link(link, envs, commands, tuple(commands), limit_s, workdir)
+    results = {name: (lines[-1] if (lines := _json_lines(text)) else None) for name, text in texts.items()}
+    return {"trainer": results.pop("trainer"), "actors": results, "exit_codes": exit_codes,
+            "link": {"delay_ms": delay_ms, "loss": loss, "seed": link_seed, "wall_s": round(elapsed, 1)}}
 
 
-def message_bytes(rollout_steps: int = 16) -> dict:
-    """Serialized (CDR) bytes of an actor's rollout (4 agents x ``rollout_steps`` steps, compact observations,
+def message_bytes(rollout_steps: int = 16, agents: int = 4, size: int = 20) -> dict:
+    """Serialized (CDR) bytes of an actor's rollout (``agents`` x ``rollout_steps`` steps, compact observations,
     taken from ``formic train``'s own first rollout of the first world) and of a weights message
     of :func:`actors_link_config`'s network."""
     import hashlib
@@ -100,7 +77,7 @@ def message_bytes(rollout_steps: int = 16) -> dict:
     from formic_ros.convert import WeightsPayload, encode_rollout, encode_weights
     from formic_trainer.train import Trainer, play_episode_set
 
-    one_world = actors_link_config(worlds=1, rollout_steps=rollout_steps)
+    one_world = actors_link_config(worlds=1, rollout_steps=rollout_steps, agents=agents, size=size)
     with tempfile.TemporaryDirectory() as run_dir:
         trainer = Trainer(one_world, Path(run_dir), resume=False, log=lambda _text: None)
         rollouts = []
@@ -128,6 +105,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python benchmarks/actors_link.py", description=__doc__.splitlines()[0])
     parser.add_argument("--episodes", type=int, default=4, help="per actor (two updates each)")
     parser.add_argument("--rollout-steps", type=int, default=16, help="an episode is two rollouts")
+    parser.add_argument("--agents", type=int, default=4, help="per actor (world), every one learning")
+    parser.add_argument("--size", type=int, default=20, help="the worlds' side")
     parser.add_argument("--delay-ms", type=float, default=20.0)
     parser.add_argument("--loss", type=float, default=0.02)
     parser.add_argument("--limit-s", type=float, default=240.0, help="per run")
@@ -138,11 +117,13 @@ def main(argv: list[str] | None = None) -> int:
     for name, delay_ms, loss, prefix, net in (("clean", 0.0, 0.0, "fxac", 220), ("lossy", args.delay_ms, args.loss,
                                                                                   "fxal", 221)):
         runs[name] = summary(actors_across_link(args.episodes, delay_ms, loss, rollout_steps=args.rollout_steps,
-                                                prefix=prefix, net=net, limit_s=args.limit_s, workdir=args.workdir))
+                                                agents=args.agents, size=args.size, prefix=prefix, net=net,
+                                                limit_s=args.limit_s, workdir=args.workdir))
         print(json.dumps({name: runs[name]}), flush=True)
     rates = [runs[name]["updates_per_s"] for name in ("clean", "lossy")]
     ratio = rates[1] / rates[0] if all(rates) else None
-    print(json.dumps({"rate_ratio": ratio, "message_bytes": message_bytes(args.rollout_steps)}), flush=True)
+    print(json.dumps({"rate_ratio": ratio, "message_bytes": message_bytes(args.rollout_steps, args.agents, args.size)}),
+          flush=True)
     return 0
 
 

@@ -217,6 +217,35 @@ def _kill_all(procs: list[subprocess.Popen]) -> None:
 FORMIC = [sys.executable, "-m", "formic_cli.main"]
 
 
+def run_on_link(link: Link, envs: dict[str, dict], commands: dict[str, tuple[str, list[str]]],
+                waited: tuple[str, ...], limit_s: float, workdir: str) -> tuple[dict[str, str], dict, float]:
+    """Each command (``name: (side, formic arguments)``) started in namespace ``side`` of
+    ``link`` with ``envs[side]``, its output in ``workdir/<prefix>_<name>.log``; waits at most
+    ``limit_s`` in all for the ``waited`` ones. Returns every log's text, every exit code (None:
+    still running, then killed) and the seconds waited; the processes are killed in any case."""
+    procs: dict[str, subprocess.Popen] = {}
+    logs = {name: open(os.path.join(workdir, f"{link.prefix}_{name}.log"), "w+") for name in commands}
+    try:
+        started = time.monotonic()
+        for name, (side, args) in commands.items():
+            procs[name] = subprocess.Popen(link.exec_in(side) + FORMIC + args, env=envs[side], stdout=logs[name],
+                                           stderr=subprocess.STDOUT, start_new_session=True)
+        end = started + limit_s
+        for name in waited:
+            try:
+                procs[name].wait(timeout=max(1.0, end - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                break
+        elapsed = time.monotonic() - started
+        for log in logs.values():
+            log.seek(0)
+        return {name: log.read() for name, log in logs.items()}, {name: p.poll() for name, p in procs.items()}, elapsed
+    finally:
+        _kill_all(list(procs.values()))
+        for log in logs.values():
+            log.close()
+
+
 def lockstep_across_link(agents: int = 16, steps: int = 60, size: int = 32, seed: int = 0,
                          delay_ms: float = 20.0, loss: float = 0.02, link_seed: int = 1,
                          fastdds_defaults: bool = False, domain_id: int = 147, prefix: str = "fxl",
@@ -296,39 +325,19 @@ def training_across_link(episodes: int = 10, agents: int = 16, size: int = 32, s
     }
     with Link(prefix, delay_ms=delay_ms, loss=loss, seed=link_seed, net=net) as link:
         envs = dict(zip("ab", _link_environments(link, domain_id, fastdds_defaults, workdir)))
-        procs: dict[str, subprocess.Popen] = {}
-        logs = {name: open(os.path.join(workdir, f"{prefix}_{name}.log"), "w+") for name in commands}
-        try:
-            started = time.monotonic()
-            for name, (side, args) in commands.items():
-                procs[name] = subprocess.Popen(link.exec_in(side) + FORMIC + args, env=envs[side], stdout=logs[name],
-                                               stderr=subprocess.STDOUT, start_new_session=True)
-            end = started + limit_s
-            for name in ("world", "trainer"):
-                try:
-                    procs[name].wait(timeout=max(1.0, end - time.monotonic()))
-                except subprocess.TimeoutExpired:
-                    break
-            elapsed = time.monotonic() - started
-            for log in logs.values():
-                log.seek(0)
-            texts = {name: log.read() for name, log in logs.items()}
-            summaries = _json_lines(texts["world"])
-            trainer = _json_lines(texts["trainer"])
-            later = [s["wall_s"] for s in summaries[1:]]
-            return {
-                "episodes": [{k: s.get(k) for k in ("episode", "food", "steps_per_s", "missed_actions", "wall_s")}
-                             for s in summaries],
-                "trainer": trainer[-1] if trainer else None,
-                "episodes_per_s": len(later) / sum(later) if later else 0.0,
-                "exit_codes": {name: p.poll() for name, p in procs.items()},
-                "link": {"delay_ms": delay_ms, "loss": loss, "seed": link_seed,
-                         "profile": "fastdds-defaults" if fastdds_defaults else "formic", "wall_s": round(elapsed, 1)},
-            }
-        finally:
-            _kill_all(list(procs.values()))
-            for log in logs.values():
-                log.close()
+        texts, exit_codes, elapsed = run_on_link(link, envs, commands, ("world", "trainer"), limit_s, workdir)
+    summaries = _json_lines(texts["world"])
+    trainer = _json_lines(texts["trainer"])
+    later = [s["wall_s"] for s in summaries[1:]]
+    return {
+        "episodes": [{k: s.get(k) for k in ("episode", "food", "steps_per_s", "missed_actions", "wall_s")}
+                     for s in summaries],
+        "trainer": trainer[-1] if trainer else None,
+        "episodes_per_s": len(later) / sum(later) if later else 0.0,
+        "exit_codes": exit_codes,
+        "link": {"delay_ms": delay_ms, "loss": loss, "seed": link_seed,
+                 "profile": "fastdds-defaults" if fastdds_defaults else "formic", "wall_s": round(elapsed, 1)},
+    }
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -10,6 +10,8 @@ tests/test_actor_split.py)."""
 from __future__ import annotations
 
 import json
+import re
+import time
 
 import pytest
 
@@ -94,3 +96,49 @@ def test_a_killed_actor_is_left_out_and_a_restarted_one_rejoins(tmp_path):
     assert all("actor 1 sent no rollout of weights version" in line and "from actor 0 (" in line
                for line in lost_lines)
     assert "8x8" in log[log.rindex("sent no rollout"):], "the restarted actor never joined an update again"
+
+
+def test_a_trainer_killed_and_restarted_from_its_checkpoint_goes_on_with_the_actors(tmp_path):
+    """`formic trainer --actors 2` SIGKILLed after its first checkpoint (episode set 1: updates
+    1-2) and its third update, under two running `formic actor`s (4 episodes each, 2 rollouts an
+    episode), and started again on the same run dir. The actors wait for it (their worlds'
+    deadline is long) and go on with its weights: it resumes at the checkpoint's version 2, and
+    what a SIGKILL loses is what came after the checkpoint: update 3 and episode set 2, whose
+    last rollouts (of version 3) went to the killed trainer. The restarted one learns sets 3 and
+    4 (updates 3-6); its checkpoint holds 6 updates and 6 episodes."""
+    config_file = tmp_path / "train_config.json"
+    config_file.write_text(json.dumps(CFG.to_dict()))
+    run_dir = tmp_path / "run"
+    spawner = Spawner(tmp_path, fresh_domain_id())
+    domain = ["--domain-id", str(spawner.domain_id), "--train-config", str(config_file)]
+    trainer_args = ("trainer", *domain, "--run-dir", str(run_dir), "--actors", "2", "--json")
+    try:
+        first = spawner.formic("trainer", *trainer_args, "--fresh", limit_s=60)
+        actors = [spawner.formic(f"actor{k}", "actor", *domain, "--actor", str(k), "--episodes", "4", "--json",
+                                 limit_s=90) for k in range(2)]
+        first.wait_for_text("update 3:", timeout=45)
+        first.kill()
+        checkpoint = read_checkpoint(run_dir / "latest.pt")["progress"]
+        for actor in actors:  # set 2 ended: its last rollouts went to the killed trainer
+            deadline = time.monotonic() + 20
+            while actor.output().count("episode over") < 2:
+                assert time.monotonic() < deadline, actor.output()[-3000:]
+                time.sleep(0.05)
+        again = spawner.formic("trainer_again", *trainer_args, "--max-updates", "4", limit_s=60)
+        assert [actor.wait() for actor in actors] == [0, 0], actors[0].output()[-3000:] + actors[1].output()[-3000:]
+        assert again.wait() == 0, again.output()[-3000:]
+        result, log = again.json_line(), again.output()
+        played = [actor.json_line()["episodes"] for actor in actors]
+        host_logs = [actor.output() for actor in actors]
+    finally:
+        spawner.reap_all()
+    assert (checkpoint["updates"], checkpoint["episode"]) == (2, 2)
+    assert "resumed from" in log and "weights version 2 published" in log
+    assert re.findall(r"\]: update (\d+):", log) == ["3", "4", "5", "6"]
+    assert (result["version"], result["updates"], result["dropped"], result["lost"]) == (6, 4, 0, 0)
+    assert [[e["episode"] for e in episodes] for episodes in played] == [[0, 2, 4, 6]] * 2  # by episode set
+    assert all(e["missed_actions"] == 0 for episodes in played for e in episodes)
+    assert all(host_log.count("weights version 2 after version 3: the trainer restarted") == 1
+               for host_log in host_logs)
+    saved = read_checkpoint(run_dir / "latest.pt")["progress"]
+    assert (saved["updates"], saved["episode"]) == (6, 6)

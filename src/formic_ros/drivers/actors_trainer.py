@@ -9,7 +9,9 @@ An actor is told apart by its agents (a world's team-wide ids are its own). One 
 nothing within ``deadline_s`` of the first rollout of an update (killed, stalled, cut off) is
 left out of it: one warning line names it, its rollout counts as lost, and the update goes on
 with the others. Its rollouts of older weights, when they come, are dropped (counted); a
-restarted actor takes the newest weights (latched) and its next rollout joins again.
+restarted actor takes the newest weights (latched) and its next rollout joins again. A trainer
+restarted from its checkpoint under running actors gathers rollouts of the checkpoint's version:
+the hosts act with its weights from their next chunk on (a learning host's restart rule).
 
 :meth:`ActorsTrainerNode.timing` splits an update's cycle, on the trainer's clock, into the
 time away (weights out until the first rollout of them is in: weights crossing, acting,

@@ -62,6 +62,11 @@ class LearningHost(Node):
 
     An episode starts at step 0 of a scenario the host has not played yet: observations of a
     new episode that arrive before its (latched) scenario are held until it does.
+
+    A trainer's weights versions only grow, so weights whose version is not above the newest
+    come from a restarted trainer (from its checkpoint), which waits for rollouts of exactly
+    them: the host acts with them from its next chunk on, whatever version it waits for (its
+    rollouts of the old trainer's weights are lost or dropped).
     """
 
     def __init__(self, agent_ids: list[int], cfg: TrainConfig, switch: str = "chunk", first_episode: int = 0,
@@ -91,11 +96,12 @@ class LearningHost(Node):
         self.scenario: Scenario | None = None  # the newest scenario
         self.horizon = -1  # its episode's steps (-1: none yet)
         self.episodes = 0  # episodes finished
-        self.episode_rollouts = 0  # rollouts sent in the current episode
+        self.episode_rollouts = 0  # rollouts sent in the current episode with the weights loaded
         self.rollouts_sent = 0
         self.held: ObservationBatch | None = None  # newest observations not dealt with yet
         self.ready: tuple[AgentBatch, Frame] | None = None  # to act on once the weights allow
         self.newest = None  # the newest Weights message received
+        self.restarted = False  # the newest weights are a restarted trainer's, not loaded yet
         self.wait_version: int | None = -1  # act only with weights newer than this (None: act now)
         self.answer = np.zeros(0, dtype=np.int64)
         self._start_waiting()  # for the first weights
@@ -112,9 +118,12 @@ class LearningHost(Node):
         self.pump()
 
     def _on_weights(self, msg) -> None:
-        if self.newest is None or msg.version > self.newest.version:
-            self.newest = msg
-            self.pump()
+        if self.newest is not None and msg.version <= self.newest.version:
+            self.log.warning(f"weights version {msg.version} after version {self.newest.version}: the trainer "
+                             "restarted; acting with them from the next chunk")
+            self.restarted = True
+        self.newest = msg
+        self.pump()
 
     def _on_batch(self, msg: ObservationBatch) -> None:
         if not self.claim.ready():
@@ -165,7 +174,7 @@ class LearningHost(Node):
         self.rollouts_pub.publish(convert.encode_rollout(rollout))
         self.episode_rollouts += 1
         self.rollouts_sent += 1
-        if self.switch == "chunk":  # act on with the weights this rollout makes
+        if self.switch == "chunk" or self.restarted:  # act on with the weights this rollout makes (or a restart's)
             self.wait_version = self.actor.weights_version
             self._start_waiting()
         elif done:  # start the next episode with the weights all of this one's make
@@ -182,14 +191,14 @@ class LearningHost(Node):
             return True
         # and a trainer's reader matched: a rollout published before that is never delivered (volatile), which
         # across a slow link, with an actor's world on loopback, happened to a first rollout (tests/test_lossy_link.py)
-        if (self.newest is None or self.newest.version <= self.wait_version
+        if (self.newest is None or (self.newest.version <= self.wait_version and not self.restarted)
                 or not self.rollouts_pub.get_subscription_count()):
             if time.monotonic() > self.next_wait_report:
                 self.log.warning(self.weights_wait_report())
                 self.next_wait_report = time.monotonic() + WEIGHTS_WAIT_LOG_S
             return False
         self.actor.load_weights(self.newest)
-        self.wait_version = None
+        self.wait_version, self.restarted, self.episode_rollouts = None, False, 0
         return True
 
     def weights_wait_report(self) -> str:
