@@ -32,14 +32,17 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def recipe_settings(stage: str | None, switch: str = "") -> dict:
     """A recipe stage's full training configuration (this tree's recipe, with ``switch`` if
-    given), as a plain dict."""
+    given), as a plain dict, every setting that is off spelled as before None meant off (0, "",
+    -1): a revision from before then (``--src``) reads it too."""
+    from formic_trainer.config import OFF_SPELLINGS
     from formic_trainer.recipes.definition import stage_config
     from formic_trainer.recipes.files import load_recipe
 
     recipe = load_recipe("paper", switch)
     index = len(recipe.stages) - 1 if stage is None else [s.name for s in recipe.stages].index(stage)
     cfg = stage_config(recipe, index, Path(tempfile.gettempdir()), seed=1)
-    return {**cfg.to_dict(), "init_weights": ""}
+    return {key: OFF_SPELLINGS[key] if value is None and key in OFF_SPELLINGS else value
+            for key, value in {**cfg.to_dict(), "init_weights": None}.items()}
 
 
 def timed(owner, name: str, totals: dict[str, float], label: str) -> None:
@@ -81,7 +84,8 @@ def measure(settings: dict, threads: int, steps: int) -> dict:
         wall, cpu = time.perf_counter() - started, time.process_time() - cpu_started
     totals["other (Python loop, bookkeeping)"] = wall - sum(totals.values())
     return {"threads": threads, "episode_steps": steps, "agents": sum(cfg.teams),
-            "learners": sum(n if cfg.learning_agents < 0 else min(n, cfg.learning_agents) for n in cfg.teams),
+            "learners": sum(n if cfg.learning_agents in (None, -1) else min(n, cfg.learning_agents)  # -1: --src
+                            for n in cfg.teams),
             "agent_steps": trainer.env_steps, "wall_s": wall, "cpu_s": cpu,
             "agent_steps_per_s": trainer.env_steps / wall, "seconds": dict(totals)}
 

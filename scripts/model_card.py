@@ -27,7 +27,7 @@ sys.path.insert(0, str(ROOT / "src"))
 from formic_agent.checkpoint import load_network, read_checkpoint  # noqa: E402
 from formic_eval.markdown_block import add_block_options, publish  # noqa: E402
 from formic_eval.matrix import file_digest  # noqa: E402
-from formic_trainer.config import PRESETS  # noqa: E402
+from formic_trainer.config import PRESETS, off_as_none  # noqa: E402
 from formic_trainer.recipes.files import held_identity  # noqa: E402
 
 
@@ -62,7 +62,7 @@ def stage_rows(run: Path, stages: list[dict], preset: str) -> tuple[list[str], f
     before, cpu_seconds = PRESETS[preset].__dict__, 0.0
     for stage in stages:
         checkpoint = read_checkpoint(run / stage["name"] / "latest.pt")
-        settings, progress = checkpoint["train_config"], checkpoint["progress"]
+        settings, progress = off_as_none(checkpoint["train_config"]), checkpoint["progress"]
         mean = f", mean of episodes {stage['average'][0]}-{stage['episodes']} every {stage['average'][1]}" \
             if stage.get("average") else ""
         hours = progress["cpu_seconds"] / 3600

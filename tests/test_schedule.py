@@ -30,7 +30,7 @@ def clock_after(clock: ScheduleClock, foods: list[float], episodes: int = 4) -> 
 
 
 def test_without_a_hold_the_clock_is_the_episode_count():
-    clock = ScheduleClock(hold=0.0, window=2, memory=3)
+    clock = ScheduleClock(hold=None, window=2, memory=3)
     assert clock_after(clock, [100, 0, 0, 0]) == [(4, False), (8, False), (12, False), (16, False)]
     assert (clock.window, clock.peaks) == ([], [])
 

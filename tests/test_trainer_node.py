@@ -128,6 +128,10 @@ def test_trainer_node_learns_as_the_learner_and_drops_stale_or_malformed_rollout
         second.rewards = second.rewards[:-1]
         node.on_rollout(second)
         assert (node.received, node.updates, node.dropped, node.learner.version) == (3, 1, 2, 1)
+        newer = encode_rollout(experience["chunks"][0])
+        newer.weights_version = 5  # a trainer before a restart made it: never learned from
+        node.on_rollout(newer)
+        assert (node.received, node.updates, node.dropped, node.learner.version) == (4, 1, 3, 1)
         node.learner.close()
         node.destroy_node()
     finally:

@@ -51,9 +51,9 @@ def step_food(loads_before: np.ndarray, loads_after: np.ndarray, load_full: int)
 
 def learning_rows(cfg: TrainConfig, ids: np.ndarray) -> np.ndarray:
     """Rows of ``ids`` (team-wide agent ids over the meta-agent worlds) whose agents learn:
-    the first ``learning_agents`` of each world (all when it is negative)."""
+    the first ``learning_agents`` of each world (all when it is None)."""
     ids = np.asarray(ids, dtype=np.int64)
-    if cfg.learning_agents < 0:
+    if cfg.learning_agents is None:
         return np.arange(len(ids))
     offsets = np.cumsum([0, *cfg.teams])
     world = np.clip(np.searchsorted(offsets, ids, side="right") - 1, 0, len(cfg.teams) - 1)

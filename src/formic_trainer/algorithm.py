@@ -56,7 +56,7 @@ def policy_losses(net: ForMICNet, cfg: TrainConfig,
     loss_mask = batch["loss_mask"]
     value_mask = batch["value_mask"] if cfg.queued_value_loss else loss_mask * batch["value_mask"]
     adv = batch["advantages"]
-    if cfg.clip > 0:
+    if cfg.clip is not None:
         ratio = torch.exp(logp - batch["logprobs"])
         pg = -torch.min(ratio * adv, torch.clamp(ratio, 1 - cfg.clip, 1 + cfg.clip) * adv)
     else:
@@ -96,7 +96,7 @@ def policy_losses(net: ForMICNet, cfg: TrainConfig,
         predicted = torch.sigmoid(logits) > 0.5
         agree = (predicted == batch["train_mask"])[..., :4].all(-1).float()
         terms["valid_accuracy"] = masked_mean(agree, loss_mask)
-        if cfg.clip > 0:
+        if cfg.clip is not None:
             terms["clip_fraction"] = masked_mean(((ratio - 1).abs() > cfg.clip).float(), loss_mask)
         # KL(behaviour || current), the low-variance estimator (r - 1) - log r (Schulman's k3)
         log_ratio = logp - batch["logprobs"]
@@ -169,7 +169,7 @@ def update(net: ForMICNet, optimizer: torch.optim.Optimizer, cfg: TrainConfig, r
             batch = {k: v[:, idx] for k, v in tensors.items()}
             with torch.autocast("cpu", dtype=torch.bfloat16, enabled=cfg.update_precision == "bf16"):
                 terms = policy_losses(net, cfg, batch)
-            stopped = cfg.target_kl > 0 and float(terms["approx_kl"]) > 1.5 * cfg.target_kl
+            stopped = cfg.target_kl is not None and float(terms["approx_kl"]) > 1.5 * cfg.target_kl
             if not stopped:
                 optimizer.zero_grad()
                 terms["loss"].backward()

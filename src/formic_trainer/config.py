@@ -21,7 +21,9 @@ from formic_world import REWARD_PRESETS, RewardConfig
 @dataclass
 class TrainConfig:
     """Every training setting, one line of help each; why the non-paper ones exist and what
-    they measured: docs/training.md, "The settings"."""
+    they measured: docs/training.md, "The settings". A setting that can be off is None when off;
+    its :data:`OFF_SPELLINGS` value (what ``--set``, a recipe and older ``config.json`` files say)
+    is read as None."""
 
     # the preset these defaults are (PRESETS["paper"] is TrainConfig()); the commands' --preset defaults
     # to "cpu", the one that trains on a CPU. Every saved config.json names its preset.
@@ -30,7 +32,7 @@ class TrainConfig:
     seed: int = 0
     # Meta-agent environments
     teams: tuple[int, ...] = (16, 24, 32, 48)  # agents in each world
-    learning_agents: int = 8  # the first N agents of each world learn, the rest act with the policy (-1: all)
+    learning_agents: int | None = 8  # the first N agents of each world learn, the rest act with the policy (None: all)
     world_sizes: tuple[tuple[int, int], ...] = ((20, 96), (20, 96), (40, 96), (64, 128))  # side range per world
     obstacle_range: tuple[float, float] = (0.0, 0.05)
     episode_steps: int = 512
@@ -39,8 +41,8 @@ class TrainConfig:
     rollout_steps: int = 512  # steps per update (512 = whole episodes, as the paper)
     epochs: int = 1
     minibatches: int = 1
-    clip: float = 0.0  # PPO ratio clip; 0 = plain actor-critic (the paper)
-    target_kl: float = 0.0  # stop an update's minibatches once approx_kl > 1.5 x this (0 = off)
+    clip: float | None = None  # PPO ratio clip; None = plain actor-critic (the paper)
+    target_kl: float | None = None  # stop an update's minibatches once approx_kl > 1.5 x this (None: off)
     gamma: float = 0.95
     gae_lambda: float = 1.0  # 1.0 = n-step bootstrapped returns (the paper)
     value_coef: float = 0.5
@@ -56,11 +58,11 @@ class TrainConfig:
     filter_initial: float = 1.0
     filter_final: float = 1.0
     # the schedule clock (formic_trainer.schedule): the filter's and highways' schedules pause over
-    # episode sets whose rolling food < anneal_hold x its peak over the last anneal_memory sets (0 = off)
-    anneal_hold: float = 0.0
+    # episode sets whose rolling food < anneal_hold x its peak over the last anneal_memory sets (None: never)
+    anneal_hold: float | None = None
     anneal_memory: int = 20
-    init_weights: str = ""  # start the network from this checkpoint (warm start / fine-tune)
-    weight_average: float = 0.0  # decay of a moving average of the weights, written as averaged.pt (0 = off)
+    init_weights: str | None = None  # start the network from this checkpoint (warm start / fine-tune)
+    weight_average: float | None = None  # decay of a moving average of the weights, as averaged.pt (None: off)
     optimizer: Literal["nadam", "adam"] = "nadam"
     lr: float = 5e-6
     lr_warmup: int = 0  # ramp the learning rate up over the first N updates of a run (0 = off)
@@ -70,10 +72,10 @@ class TrainConfig:
     normalize_advantages: bool = False
     reward_scale: float = 1.0
     team_reward: float = 0.0  # each reward becomes (1-f)*own + f*(its world's mean) (beyond the paper)
-    imitate: str = ""  # a baseline whose actions are imitation targets (DAgger style; "" = off)
+    imitate: str | None = None  # a baseline whose actions are imitation targets (DAgger style; None: off)
     imitation_coef: float = 0.0
     imitation_agents: Literal["loaded", "all"] = "loaded"  # whose actions are imitation targets
-    imitation_radius: int = 0  # ... within this many cells of the nest centre (0: anywhere)
+    imitation_radius: int | None = None  # ... within this many cells of the nest centre (None: anywhere)
     # Techniques (the paper's ablation switches)
     action_filter: Literal["replace", "mask", "none"] = "replace"  # replace (paper); mask: mask invalid logits
     training_filter: Literal["paper", "reference"] = "paper"  # carrying agents' filter (SPEC §4)
@@ -85,10 +87,10 @@ class TrainConfig:
     curriculum_end: int = 10000
     training_start: bool = True  # some agents start in cache queues loaded (reference behaviour)
     # Fall guard (formic_trainer.guard): keep best.pt, roll back to it when the rolling food falls
-    guard_drop: float = 0.0  # roll back when the rolling food < guard_drop x its best (0 = off)
+    guard_drop: float | None = None  # roll back when the rolling food < guard_drop x its best (None: no guard)
     guard_window: int = 5  # episode sets in the rolling food mean
     guard_after: int = 0  # watch the episode sets played from this episode on
-    guard_restart: int = 0  # from this episode on the guard's best starts again (0 = never): best.pt after it
+    guard_restart: int | None = None  # from this episode on the guard's best starts again (None: never)
     guard_max: int = 3  # rollbacks at most; after them the guard only logs
     guard_lr_factor: float = 0.5  # each rollback multiplies the learning rate by this
     # Run
@@ -97,23 +99,28 @@ class TrainConfig:
     threads: int = 1
 
     def __post_init__(self) -> None:
+        for name, value in off_as_none({name: getattr(self, name) for name in OFF_SPELLINGS}).items():
+            setattr(self, name, value)
         for name, allowed in _choices().items():
             if getattr(self, name) not in allowed:
                 raise ValueError(f"{name} must be one of {', '.join(map(repr, allowed))}, not {getattr(self, name)!r}")
         if self.network not in NETWORK_PRESETS:
             raise ValueError(f"network must be one of {', '.join(map(repr, NETWORK_PRESETS))}, not {self.network!r}")
-        if not 0.0 <= self.weight_average < 1.0:
-            raise ValueError(f"weight_average is a decay in [0, 1) (0 = off), not {self.weight_average}")
+        for name in ("weight_average", "guard_drop", "anneal_hold"):
+            if getattr(self, name) is not None and not 0.0 < getattr(self, name) < 1.0:
+                raise ValueError(f"{name} must be in (0, 1), or None or 0 for off, not {getattr(self, name)}")
+        for name in ("clip", "target_kl", "imitation_radius", "guard_restart"):
+            if getattr(self, name) is not None and getattr(self, name) <= 0:
+                raise ValueError(f"{name} must be > 0, or None or 0 for off, not {getattr(self, name)}")
+        if self.learning_agents is not None and self.learning_agents < 0:
+            raise ValueError(f"learning_agents must be >= 0, or None or -1 for all, not {self.learning_agents}")
         if not 0.0 <= self.filter_initial <= 1.0:
             raise ValueError(f"filter_initial is a probability in [0, 1], not {self.filter_initial}")
-        if not 0.0 <= self.guard_drop < 1.0 or not 0.0 < self.guard_lr_factor <= 1.0:
-            raise ValueError(f"guard_drop must be in [0, 1) (0 = off) and guard_lr_factor in (0, 1], not "
-                             f"{self.guard_drop} and {self.guard_lr_factor}")
-        if not 0.0 <= self.anneal_hold < 1.0 or self.anneal_memory < 1:
-            raise ValueError(f"anneal_hold must be in [0, 1) (0 = off) and anneal_memory >= 1, not "
-                             f"{self.anneal_hold} and {self.anneal_memory}")
-        if self.target_kl < 0 or self.guard_window < 1 or self.guard_max < 0 or self.guard_after < 0 or self.guard_restart < 0:
-            raise ValueError("target_kl, guard_max, guard_after and guard_restart must be >= 0 and guard_window >= 1")
+        if not 0.0 < self.guard_lr_factor <= 1.0 or self.anneal_memory < 1:
+            raise ValueError(f"guard_lr_factor must be in (0, 1] and anneal_memory >= 1, not "
+                             f"{self.guard_lr_factor} and {self.anneal_memory}")
+        if self.guard_window < 1 or self.guard_max < 0 or self.guard_after < 0:
+            raise ValueError("guard_max and guard_after must be >= 0 and guard_window >= 1")
         reward_config(self)  # a bad reward_overrides fails here, not at the first episode
         if len(self.world_sizes) < len(self.teams):
             raise ValueError(f"{len(self.teams)} teams but {len(self.world_sizes)} world_sizes: give one side "
@@ -123,13 +130,35 @@ class TrainConfig:
         return dataclasses.asdict(self)
 
 
+# the settings that are None when off (learning_agents: when every agent learns), each with the value
+# that said so before: TOML has no None, so a recipe still writes it, and so may --set; config.json
+# files and checkpoints written before hold it. A TrainConfig reads it as None.
+OFF_SPELLINGS: dict[str, float | int | str] = {
+    "learning_agents": -1, "clip": 0.0, "target_kl": 0.0, "anneal_hold": 0.0, "init_weights": "",
+    "weight_average": 0.0, "imitate": "", "imitation_radius": 0, "guard_drop": 0.0, "guard_restart": 0,
+}
+
+
+def off_as_none(settings: dict) -> dict:
+    """``settings`` (TrainConfig fields by name, e.g. a checkpoint's ``train_config``) with every
+    :data:`OFF_SPELLINGS` value as None, as a TrainConfig holds it."""
+    return {name: None if name in OFF_SPELLINGS and value == OFF_SPELLINGS[name] else value
+            for name, value in settings.items()}
+
+
+def typed_example(cfg: TrainConfig, name: str):
+    """A value of the type setting ``name`` takes: ``cfg``'s, or its off spelling where that is None."""
+    value = getattr(cfg, name)
+    return OFF_SPELLINGS[name] if value is None else value
+
+
 def require_distributable(cfg: TrainConfig) -> None:
     """Distributed training (``formic train-ros``, ``formic trainer``) runs the settings whose
     inputs its processes see; a ValueError names the one it cannot, and what to do instead."""
-    if cfg.imitate:
+    if cfg.imitate is not None:
         raise ValueError("imitation runs its demonstrator beside the training worlds; train it in-process "
                          "(formic train)")
-    if cfg.anneal_hold:
+    if cfg.anneal_hold is not None:
         raise ValueError("anneal_hold moves the filter's and highways' schedules with the trainer's food record, "
                          "which the training worlds do not see; train it in-process (formic train) or set "
                          "anneal_hold=0")
@@ -165,7 +194,7 @@ PRESETS = {
     "paper": TrainConfig(),
     # PPO with GAE on a small network, every agent learning, masked sampling with annealing
     "cpu": TrainConfig(
-        preset="cpu", network="cpu", learning_agents=-1,
+        preset="cpu", network="cpu", learning_agents=None,
         rollout_steps=128, epochs=3, minibatches=4, clip=0.2, gae_lambda=0.95,
         optimizer="adam", lr=3e-4, max_grad_norm=0.5, loss_reduction="mean", normalize_advantages=True,
         reward_scale=0.1,
@@ -183,8 +212,9 @@ def make_config(preset: str = "paper", **overrides) -> TrainConfig:
 
 
 def parse_overrides(pairs: tuple[str, ...] | list[str]) -> dict:
-    """``KEY=VALUE`` strings to TrainConfig fields, typed like the field's default; every error
-    names the key it is about."""
+    """``KEY=VALUE`` strings to TrainConfig fields, typed like the field's default (``none``, or
+    the :data:`OFF_SPELLINGS` value, for a setting that can be off); every error names the key it
+    is about."""
     import difflib
 
     defaults = TrainConfig()
@@ -198,7 +228,10 @@ def parse_overrides(pairs: tuple[str, ...] | list[str]) -> dict:
             close = difflib.get_close_matches(key, fields, n=1)
             raise ValueError(f"{key!r} is not a TrainConfig field{f' (did you mean {close[0]}?)' if close else ''}: "
                              "the settings are listed in docs/training.md")
-        current = getattr(defaults, key)
+        if key in OFF_SPELLINGS and text.lower() == "none":
+            out[key] = None
+            continue
+        current = typed_example(defaults, key)
         if isinstance(current, bool):
             if text.lower() not in ("true", "false", "1", "0", "yes", "no"):
                 raise ValueError(f"{key} expects true/false, got {text!r}")

@@ -32,9 +32,10 @@ class Verdict:
 
 
 class FallGuard:
-    def __init__(self, drop: float, window: int, after: int, most: int, lr_factor: float, restart: int = 0):
+    def __init__(self, drop: float, window: int, after: int, most: int, lr_factor: float,
+                 restart: int | None = None):
         self.drop, self.window_size, self.after, self.most, self.factor = drop, window, after, most, lr_factor
-        self.restart = restart  # 0 = never
+        self.restart = restart  # None = never
         self.restarted = False
         self.window: list[float] = []  # the food of the last episode sets watched
         self.best: float | None = None  # the best full-window rolling mean ...
@@ -44,8 +45,8 @@ class FallGuard:
 
     @classmethod
     def from_config(cls, cfg) -> FallGuard | None:
-        """The guard a TrainConfig asks for (None with ``guard_drop`` 0)."""
-        if cfg.guard_drop <= 0:
+        """The guard a TrainConfig asks for (None without a ``guard_drop``)."""
+        if cfg.guard_drop is None:
             return None
         return cls(cfg.guard_drop, cfg.guard_window, cfg.guard_after, cfg.guard_max, cfg.guard_lr_factor,
                    cfg.guard_restart)
@@ -59,7 +60,7 @@ class FallGuard:
         at = episode if schedule is None else schedule
         if at <= self.after:
             return Verdict(WATCH)
-        if self.restart and at > self.restart and not self.restarted:  # the first set played from there
+        if self.restart is not None and at > self.restart and not self.restarted:  # the first set from there
             self.window, self.best, self.restarted = [], None, True
         self.window = [*self.window, float(food)][-self.window_size:]
         if len(self.window) < self.window_size:

@@ -18,7 +18,7 @@ import torch
 from formic_agent.checkpoint import CheckpointError, initialise_from, load_network, read_checkpoint, save_checkpoint
 
 from .algorithm import check_update_precision, make_optimizer, set_learning_rate, training_network, update
-from .config import TrainConfig, plain
+from .config import TrainConfig, off_as_none, plain
 from .guard import BEST, ROLL_BACK, WATCH, FallGuard, Verdict
 from .rollout import Rollout
 from .schedule import ScheduleClock
@@ -54,18 +54,18 @@ class Learner:
         self.env_steps = 0
         self.seconds = 0.0
         self.cpu_seconds = 0.0
-        self.averaged = None  # the moving average of the weights (a network), when weight_average > 0
-        self.guard = FallGuard.from_config(cfg)  # None when guard_drop is 0
+        self.averaged = None  # the moving average of the weights (a network), with a weight_average
+        self.guard = FallGuard.from_config(cfg)  # None without a guard_drop
         self.schedule = ScheduleClock.from_config(cfg)  # the episode the filter's and highways' schedules read
         latest = self.run_dir / "latest.pt"
         stored_average = None
         if resume and latest.exists():
             stored_average = self._resume(latest)
-        elif cfg.init_weights:
+        elif cfg.init_weights is not None:
             net, _ = load_network(cfg.init_weights)
             initialise_from(self.net, net)
             self.log(f"network initialised from {cfg.init_weights}")
-        if cfg.weight_average:  # the average starts at the weights, unless the checkpoint carries one
+        if cfg.weight_average is not None:  # the average starts at the weights, unless the checkpoint carries one
             self.averaged = copy.deepcopy(self.net).requires_grad_(False)
             if stored_average is not None:
                 self.averaged.load_state_dict(stored_average)
@@ -84,7 +84,7 @@ class Learner:
     def _resume(self, path: Path) -> dict | None:
         """Weights, optimiser and counters from ``path``; returns the weight average it carries."""
         payload = read_checkpoint(path)
-        stored = payload.get("train_config", {})
+        stored = off_as_none(payload.get("train_config", {}))  # written before None meant off: 0 or ""
         changed = sorted(k for k, v in self.cfg.to_dict().items()
                          if k not in RESUMABLE and k in stored and plain(stored[k]) != plain(v))
         if changed:

@@ -10,14 +10,14 @@ rolling food (the mean of the last ``window`` sets) is below ``hold`` x its rece
 best rolling food of the last ``memory`` sets): there the wheels stay as they are until the food
 comes back or the peak ages out (a lower level that lasts becomes the new reference, so a stall
 is bounded). A rollback of the fall guard sets the clock back with the weights, to where it
-stood when ``best.pt`` was written. With ``hold`` 0 the clock is the episode count, exactly.
+stood when ``best.pt`` was written. Without a ``hold`` (None) the clock is the episode count, exactly.
 """
 
 from __future__ import annotations
 
 
 class ScheduleClock:
-    def __init__(self, hold: float = 0.0, window: int = 5, memory: int = 20, episode: int = 0):
+    def __init__(self, hold: float | None = None, window: int = 5, memory: int = 20, episode: int = 0):
         self.hold, self.window_size, self.memory = hold, window, memory
         self.episode = episode  # what the schedules read
         self.window: list[float] = []  # the food of the last episode sets
@@ -33,7 +33,7 @@ class ScheduleClock:
         only with a hold): the clock advances by ``episodes`` unless the set holds it. Returns
         whether it held."""
         self.held = False
-        if self.hold > 0:
+        if self.hold is not None:
             if food is None:
                 raise ValueError("the schedule clock's hold needs each episode set's food_mean")
             self.window = [*self.window, float(food)][-self.window_size:]

@@ -71,7 +71,7 @@ class Trainer:
             sps = learner.env_steps / max(learner.seconds, 1e-9)
             per_env = " ".join(f"{stats[f'food_env{i}']:.0f}" for i in range(len(self.cfg.teams)))
             held = " held" if learner.schedule.held else ""
-            clock = f" sched {stats['schedule_episode']:.0f}{held}" if self.cfg.anneal_hold else ""
+            clock = f" sched {stats['schedule_episode']:.0f}{held}" if self.cfg.anneal_hold is not None else ""
             imitation = (f"imit {stats['imitation']:.3f} agree {stats['expert_agreement']:.2f} | "
                          if "imitation" in stats else "")
             self.log(
@@ -100,7 +100,7 @@ def play_episode_set(cfg: TrainConfig, envs: MetaAgents, actor: Actor, episode: 
     frame = envs.observe()
     for step in range(cfg.episode_steps):
         actions = actor.act(frame)
-        if cfg.imitate:
+        if cfg.imitate is not None:
             actor.demonstrate(*envs.demonstrations())
         food += envs.step(actions)
         frame = envs.observe()

@@ -104,7 +104,7 @@ class MetaAgents:
         for feedback, team in zip(self.feedback, self.cfg.teams):
             feedback.reset(team)
         self.rewards = [np.zeros(team) for team in self.cfg.teams]
-        if self.cfg.imitate:
+        if self.cfg.imitate is not None:
             self.experts = [make_policy(self.cfg.imitate) for _ in scenarios]
             for expert, scenario in zip(self.experts, scenarios):
                 expert.reset(scenario.config.n_agents, scenario.seed)
@@ -121,9 +121,10 @@ class MetaAgents:
         """(expert action, whether it is an imitation target) for every agent of every world,
         from the last observations; the experts must see every step to keep their state."""
         cfg, targets, wanted = self.cfg, [], []
+        radius = np.inf if cfg.imitation_radius is None else cfg.imitation_radius
         for w, expert, (obs, valid) in zip(self.worlds, self.experts, self._seen):
             targets.append(expert.act(AgentBatch.from_world(w, observations=obs, action_mask=valid)))
-            near = np.abs(w.pos - (np.array(w.grid.shape) / 2 - 0.5)).max(axis=1) <= (cfg.imitation_radius or np.inf)
+            near = np.abs(w.pos - (np.array(w.grid.shape) / 2 - 0.5)).max(axis=1) <= radius
             who = w.carrying if cfg.imitation_agents == "loaded" else np.ones(len(w.pos), bool)
             wanted.append(near & who & ~w.queued)
         return np.concatenate(targets), np.concatenate(wanted)

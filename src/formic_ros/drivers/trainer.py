@@ -78,6 +78,10 @@ class TrainerNode(Node):
         if (rollout := self.take(msg)) is None:
             return
         lag = self.learner.version - rollout.weights_version
+        if lag < 0:  # versions only grow: a previous trainer's, this one resumed from an older checkpoint
+            self.drop(f"a rollout of weights version {rollout.weights_version}, newer than this trainer's "
+                      f"{self.learner.version} (a trainer before a restart made it)")
+            return
         if lag > self.max_lag:
             self.drop(f"a rollout of weights version {rollout.weights_version}, now {self.learner.version} "
                       f"(learning from at most {self.max_lag} versions back)")

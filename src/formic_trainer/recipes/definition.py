@@ -93,7 +93,7 @@ def stage_config(recipe: Recipe, index: int, run_dir: Path, seed: int, threads: 
     stages of a run and no two runs of seeds below 1000 share a random stream. ``threads``
     replaces the stage's torch threads (speed only: a stage may resume with another count)."""
     stage = recipe.stages[index]
-    start = "" if stage.start == "scratch" else str(weights_file(run_dir, stage.start))
+    start = None if stage.start == "scratch" else str(weights_file(run_dir, stage.start))
     settings = stage.settings if threads is None else {**stage.settings, "threads": threads}
     return make_config(recipe.preset, **settings, seed=1000 * seed + index + 1,
                        total_episodes=stage.episodes, init_weights=start)

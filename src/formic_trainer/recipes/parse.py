@@ -8,7 +8,7 @@ import re
 from dataclasses import fields
 from pathlib import Path
 
-from ..config import PRESETS, TrainConfig, make_config
+from ..config import PRESETS, TrainConfig, make_config, typed_example
 from .definition import WEIGHTS, Recipe, RecipeError, Stage, Validation
 
 # TrainConfig fields a stage's `set` may not hold: the recipe derives them
@@ -33,8 +33,8 @@ def _keys(table: dict, where: str, required: set[str], optional: set[str] = froz
 
 
 def _typed(value, like, where: str, length: int | None = None):
-    """``value`` from TOML as the type of ``like`` (a TrainConfig default): lists become tuples,
-    inner ones (a world's side range) as long as the default's."""
+    """``value`` from TOML as the type of ``like`` (a TrainConfig default, or its off spelling:
+    TOML has no None): lists become tuples, inner ones (a world's side range) as long as the default's."""
     if isinstance(like, tuple):
         if not isinstance(value, list) or length not in (None, len(value)):
             raise RecipeError(f"{where} must be a list" + (f" of {length}" if length else ""))
@@ -67,7 +67,7 @@ def _settings(table: dict, where: str, defaults: TrainConfig) -> dict:
             raise RecipeError(f"{where}.{key} is not a training setting (a TrainConfig field)")
         if key in DERIVED:
             raise RecipeError(f"{where}.{key}: given by {DERIVED[key]}")
-        settings[key] = _typed(value, getattr(defaults, key), f"{where}.{key}")
+        settings[key] = _typed(value, typed_example(defaults, key), f"{where}.{key}")
     return settings
 
 
@@ -93,7 +93,7 @@ def _scaled(count: int, scale: float, unit: int) -> int:
 
 
 def _scaled_schedules(cfg: TrainConfig, scale: float) -> dict:
-    """Every schedule's start and end (and every episode setting not 0) times ``scale``; one that has
+    """Every schedule's start and end (and every episode setting not 0 or None) times ``scale``; one that has
     an end after its start keeps one (an end equal to the start means "no schedule", e.g. the
     filter held on)."""
     out = {key: round(getattr(cfg, key) * scale) for key in EPISODE_SETTINGS if getattr(cfg, key)}
@@ -189,6 +189,6 @@ def _reference(ref: str, stages: dict[str, Stage], where: str, preset: str) -> N
         raise RecipeError(f"{where} {ref!r} is not 'scratch', an earlier stage, the '.mean' of an earlier "
                           f"stage with an average or the '.best' of an earlier stage with a fall guard "
                           f"(stages: {', '.join(stages) or 'none'})")
-    if part == "best" and make_config(preset, **stages[name].settings).guard_drop <= 0:
+    if part == "best" and make_config(preset, **stages[name].settings).guard_drop is None:
         raise RecipeError(f"{where} {ref!r}: stage {name!r} keeps no best.pt, its fall guard is off "
                           "(set its guard_drop)")
