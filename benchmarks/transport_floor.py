@@ -7,8 +7,10 @@ time a step), ``formic run --transport batched``, ``formic run --transport per-a
 after step 0, as their summaries say) and ``benchmarks/rclpy_publish.py`` (the cost of one
 rclpy publish to another process, measured in the same run). The serial publish floor of the
 per-agent transport is ``formic sim``'s step plus two publishes an agent (its observation and
-its action), one after the other. Printed: medians over the rounds, the ratios, and whether
-food and state digest equal ``formic sim``'s in every run:
+its action), one after the other. Printed: medians over the rounds, the ratios (each the median
+of the rounds' own ratios: a busy machine's speed drifts from round to round, and the paths of
+one round run minutes apart at most), and whether food and state digest equal ``formic sim``'s
+in every run:
 
     .venv/bin/python benchmarks/transport_floor.py --agents 16 --size 32 --steps 64 --rounds 1
 """
@@ -62,21 +64,26 @@ def main() -> None:
     world = ["--agents", str(args.agents), "--size", str(args.size), "--steps", str(args.steps),
              "--seed", str(args.seed), "--policy", args.policy]
     rounds = [one_round(world, args.agents, args.domain_id, args.out) for _ in range(args.rounds)]
-    median = {key: statistics.median(r[key][0] for r in rounds) for key in ("sim", "batched", "per-agent")}
+    for r in rounds:  # serial: sim's step, then 2N publishes
+        r["floor"] = (1.0 / (1.0 / r["sim"][0] + 2 * args.agents * r["us_per_publish"] * 1e-6),)
+    median = {key: statistics.median(r[key][0] for r in rounds) for key in ("sim", "floor", "batched", "per-agent")}
     publish_us = statistics.median(r["us_per_publish"] for r in rounds)
-    sim_s = 1.0 / median["sim"]
-    floor = 1.0 / (sim_s + 2 * args.agents * publish_us * 1e-6)  # serial: sim's step, then 2N publishes
+    floor = median["floor"]
+
+    def ratio(over: str, key: str) -> float:
+        return statistics.median(r[over][0] / r[key][0] for r in rounds)
+
     expected = rounds[0]["sim"][1:]
     same = all(r[key][1:] == expected for r in rounds for key in ("sim", "batched", "per-agent"))
 
     print(f"{args.agents} agents, {args.size}x{args.size}, {args.steps} steps, seed {args.seed}, "
           f"policy {args.policy}; medians of {args.rounds} round(s)")
     print(f"publish: {publish_us:.1f} us ({args.agents} topics); per-agent serial floor: {floor:.0f} steps/s "
-          f"({1.0 / floor / sim_s:.2f}x formic sim)")
+          f"({ratio('sim', 'floor'):.2f}x formic sim)")
     print(f"{'path':<22}{'steps/s':>9}{'vs sim':>9}{'vs floor':>10}   rounds")
     for key, label in (("sim", "formic sim"), ("batched", "run batched"), ("per-agent", "run per-agent")):
         each = " ".join(f"{r[key][0]:.0f}" for r in rounds)
-        ratios = f"{median['sim'] / median[key]:>8.2f}x{floor / median[key]:>9.2f}x"
+        ratios = f"{ratio('sim', key):>8.2f}x{ratio('floor', key):>9.2f}x"
         print(f"{label:<22}{median[key]:>9.0f}{ratios}   {each}")
     print(f"food {expected[0]}, digest {expected[1]}: "
           + ("equal in every run" if same else "DIFFERENT: " + json.dumps(rounds)))

@@ -107,22 +107,26 @@ class ActionInbox:
             reason = "old step" if step < self.step or (step == self.step and not self.is_open) else "future step"
             self.reject(reason, len(ids), f"{source}: step {step}, the world is at step {self.step}")
             return
-        unknown = ids >= self.n_agents
-        if unknown.any():
-            self.reject("unknown agent", int(unknown.sum()),
-                        f"{source}: agent ids {ids[unknown][:8].tolist()} (team of {self.n_agents})")
-        bad = ~unknown & ((acts < 0) | (acts > 4))
-        if bad.any():
-            self.reject("action out of range", int(bad.sum()),
-                         f"{source}: actions {acts[bad][:8].tolist()} for agents {ids[bad][:8].tolist()} (valid 0-4)")
-        ok = ~unknown & ~bad
+        ok = (ids < self.n_agents) & (acts >= 0) & (acts <= 4)
+        if not ok.all():  # unknown agents or bad actions: reported, the rest taken
+            unknown = ids >= self.n_agents
+            if unknown.any():
+                self.reject("unknown agent", int(unknown.sum()),
+                            f"{source}: agent ids {ids[unknown][:8].tolist()} (team of {self.n_agents})")
+            bad = ~unknown & ~ok
+            if bad.any():
+                self.reject("action out of range", int(bad.sum()), f"{source}: actions {acts[bad][:8].tolist()} "
+                            f"for agents {ids[bad][:8].tolist()} (valid 0-4)")
         if self.owners is not None and ok.any():
             ok[ok] = self.owners.allowed_batch(via, ids[ok])
-        ids, acts = ids[ok], acts[ok]
+        if not ok.all():
+            ids, acts = ids[ok], acts[ok]
         fresh = ~self.received[ids]
-        self.duplicates += int((~fresh).sum())
-        self.actions[ids[fresh]] = acts[fresh]
-        self.received[ids[fresh]] = True
+        if not fresh.all():  # the common case (a whole batch, none heard yet) skips this
+            self.duplicates += int((~fresh).sum())
+            ids, acts = ids[fresh], acts[fresh]
+        self.actions[ids] = acts
+        self.received[ids] = True
         self.heard = int(self.received.sum())
 
 

@@ -79,8 +79,8 @@ class WorldOutbox:
         listening = self._listeners()
         if missing is not None:
             listening = [a for a in listening if missing[a]]
-        if listening:
-            rows = np.asarray(listening, dtype=np.int64)
+        if listening:  # rows as the batch has them (agent ids 0..N-1) when every agent listens: no copies
+            rows = None if len(listening) == len(self.agent_obs_pubs) else np.asarray(listening, dtype=np.int64)
             for a, data in zip(listening, convert.agent_observation_bytes(batch, result.rewards, result.done, rows)):
                 self.agent_obs_pubs[a].publish(data)
 

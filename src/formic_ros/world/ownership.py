@@ -174,12 +174,14 @@ class Ownership(Claims):
 
     def allowed_batch(self, via: str, ids: np.ndarray) -> np.ndarray:
         """:meth:`allowed` for a batch's agents at once (the agents the owner of topic ``via``
-        drives are kept until the owners change; the rest are checked, and counted, one by one)."""
+        drives are kept, sorted, until the owners change; the rest are checked, and counted, one
+        by one). A binary search, not ``np.isin``: this runs on every batch, and ``np.isin`` took
+        ~0.13 ms of the world's step at 128 agents."""
         owned = self.batch_agents.get(via)
         if owned is None:
             owned = self.batch_agents[via] = np.array(
                 sorted(a for a, t in self.owner_of.items() if self.claims[t]["actions"] == via), dtype=np.int64)
-        ok = np.isin(ids, owned)
+        ok = owned.take(owned.searchsorted(ids), mode="clip") == ids if len(owned) else np.zeros(len(ids), bool)
         if not ok.all():
             ok[~ok] = [self.allowed(via, a) for a in ids[~ok].tolist()]
         return ok
