@@ -74,7 +74,7 @@ def message_bytes(rollout_steps: int = 16, agents: int = 4, size: int = 20) -> d
     from rclpy.serialization import serialize_message
 
     from formic_agent.checkpoint import state_dict_bytes
-    from formic_ros.convert import WeightsPayload, encode_rollout, encode_weights
+    from formic_ros.convert_learning import WeightsPayload, encode_rollout, encode_weights
     from formic_trainer.train import Trainer, play_episode_set
 
     one_world = actors_link_config(worlds=1, rollout_steps=rollout_steps, agents=agents, size=size)

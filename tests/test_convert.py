@@ -17,7 +17,7 @@ from conftest import agent, build_world, resource, step  # noqa: E402
 from formic_agent.policy import AgentBatch  # noqa: E402
 from formic_record import compact  # noqa: E402
 from formic_record.replay import RecordedState  # noqa: E402
-from formic_ros import convert, wire  # noqa: E402
+from formic_ros import convert, convert_learning, wire  # noqa: E402
 from formic_topics import EXTRA_INPUT_COUNT  # noqa: E402
 from formic_trainer.rollout import Rollout  # noqa: E402
 from formic_world import World, WorldConfig, generate_scenario  # noqa: E402
@@ -220,10 +220,10 @@ def random_rollout(imitation: bool, steps: int = 3, agents: int = 2, rnn: int = 
 def test_rollouts_round_trip_field_for_field(imitation, encoding):
     """Every field comes back bit for bit (the learner's losses depend on it), in either encoding."""
     want = random_rollout(imitation)
-    msg, _ = through_cdr(convert.encode_rollout(want, encoding))
+    msg, _ = through_cdr(convert_learning.encode_rollout(want, encoding))
     assert (msg.n_steps, msg.n_agents, msg.encoding) == (3, 2, wire.ENCODINGS[encoding])
     assert (len(msg.observations) == 0) == (encoding == "compact")
-    got = convert.decode_rollout(msg)
+    got = convert_learning.decode_rollout(msg)
     for field in dataclasses.fields(Rollout):
         a, b = getattr(got, field.name), getattr(want, field.name)
         if isinstance(b, np.ndarray):
@@ -231,15 +231,15 @@ def test_rollouts_round_trip_field_for_field(imitation, encoding):
         else:
             assert a == b and type(a) is type(b), field.name
     for name in ("rewards", "h0", "train_mask"):
-        broken, _ = through_cdr(convert.encode_rollout(want, encoding))
+        broken, _ = through_cdr(convert_learning.encode_rollout(want, encoding))
         setattr(broken, name, getattr(broken, name)[:-1])
         with pytest.raises(ValueError, match=f"Rollout.{name}"):
-            convert.decode_rollout(broken)
-    broken, _ = through_cdr(convert.encode_rollout(want, encoding))
+            convert_learning.decode_rollout(broken)
+    broken, _ = through_cdr(convert_learning.encode_rollout(want, encoding))
     field = "other_values" if encoding == "compact" else "observations"
     setattr(broken, field, getattr(broken, field)[:-1])
     with pytest.raises(ValueError, match="other values" if encoding == "compact" else "float32 observation values"):
-        convert.decode_rollout(broken)
+        convert_learning.decode_rollout(broken)
 
 
 def test_a_rollout_of_world_observations_is_over_ten_times_smaller_compact():
@@ -256,12 +256,12 @@ def test_a_rollout_of_world_observations_is_over_ten_times_smaller_compact():
                                observations=np.stack(frames))
     sizes = {}
     for encoding in ("float32", "compact"):
-        msg, sizes[encoding] = through_cdr(convert.encode_rollout(want, encoding))
-        assert bits(convert.decode_rollout(msg).observations) == bits(want.observations)
+        msg, sizes[encoding] = through_cdr(convert_learning.encode_rollout(want, encoding))
+        assert bits(convert_learning.decode_rollout(msg).observations) == bits(want.observations)
     assert sizes["compact"] < sizes["float32"] / 10, sizes
 
 
 def test_weights_round_trip():
-    want = convert.WeightsPayload(4, b"\x00\x01weights", "abc123", {"channels": 8, "hidden": [64, 64]})
-    msg, _ = through_cdr(convert.encode_weights(want))
-    assert convert.decode_weights(msg) == want
+    want = convert_learning.WeightsPayload(4, b"\x00\x01weights", "abc123", {"channels": 8, "hidden": [64, 64]})
+    msg, _ = through_cdr(convert_learning.encode_weights(want))
+    assert convert_learning.decode_weights(msg) == want

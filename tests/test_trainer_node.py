@@ -28,7 +28,7 @@ torch = pytest.importorskip("torch")
 from formic_agent.checkpoint import CheckpointError, read_checkpoint  # noqa: E402
 from formic_agent.learned import LearnedPolicy  # noqa: E402
 from formic_agent.inputs import N_EXTRA_INPUTS  # noqa: E402
-from formic_ros.convert import decode_rollout, encode_rollout  # noqa: E402
+from formic_ros.convert_learning import decode_rollout, encode_rollout  # noqa: E402
 from formic_ros.drivers.host_actor import apply_weights  # noqa: E402
 from formic_ros.drivers.trainer import TrainerNode  # noqa: E402
 from formic_topics import EXTRA_INPUT_COUNT  # noqa: E402

@@ -27,6 +27,7 @@ from formic_world import Scenario
 from formic_world.geometry import N_ACTIONS
 
 from .. import convert, qos
+from ..convert_learning import encode_rollout
 from ..graph import publishers_of
 from ..parameters import declare_settings
 from ..wire import read
@@ -171,7 +172,7 @@ class LearningHost(Node):
         rollout = self.actor.outcome(frame, loads, done)
         if rollout is None:
             return
-        self.rollouts_pub.publish(convert.encode_rollout(rollout))
+        self.rollouts_pub.publish(encode_rollout(rollout))
         self.episode_rollouts += 1
         self.rollouts_sent += 1
         if self.switch == "chunk" or self.restarted:  # act on with the weights this rollout makes (or a restart's)

@@ -30,7 +30,7 @@ from formic_trainer.learner import Learner
 from formic_trainer.rollout import Rollout
 
 from .. import qos
-from ..convert import WeightsPayload, decode_rollout, encode_weights
+from ..convert_learning import WeightsPayload, decode_rollout, encode_weights
 from ..env import ros_session
 from ..graph import publishers_of
 from ..parameters import declare_settings, settings_of
