@@ -300,3 +300,46 @@ def test_nobody_joined_names_the_refused_claimant(monkeypatch):
     assert "/formic/early_bird claimed agents but did not answer (it has left the graph)" in world.why_nobody_answered()
     node.names = [("early_bird", "/formic")]
     assert world.why_nobody_answered().endswith("/formic/early_bird claimed agents but did not answer")
+
+
+# --- a step's batch, gated agent by agent against its owners, fills the inbox once ---------
+HOST_ACTIONS = "/formic/agent_host_0/actions"
+
+
+def owned_by_host(agents: list[int]):
+    from std_msgs.msg import String
+
+    from formic_ros.world import ownership
+
+    world = ownership.Ownership(GraphNode(), offer_batch=None, subscribe=lambda *args: None)
+    world._on_claim(String(data=json.dumps({"owner": "/formic/agent_host_0", "token": "h", "agents": agents,
+                                            "actions": HOST_ACTIONS})))
+    return world
+
+
+def test_a_batch_takes_its_owners_agents_and_counts_the_rest():
+    from collections import Counter
+
+    world = owned_by_host([0, 2, 5])
+    rejected = Counter()
+    world.count_into(rejected)
+    ids = np.array([5, 0, 1, 2, 7])
+    assert world.allowed_batch(HOST_ACTIONS, ids).tolist() == [True, True, False, True, False]
+    assert rejected == {"unclaimed": 2}
+    assert world.allowed_batch("/formic/stranger/actions", np.array([0, 2])).tolist() == [False, False]
+    assert rejected == {"unclaimed": 2, "not owner": 2}
+
+
+def test_a_gated_batch_fills_the_inbox_once():
+    from formic_ros.world.lockstep import ActionInbox, RateLimitedLog
+
+    world = owned_by_host([0, 2, 5])
+    inbox = ActionInbox(8, RateLimitedLog(world.node.get_logger(), period_s=60.0), owners=world)
+    world.count_into(inbox.rejected)
+    inbox.open(3)
+    inbox.offer(3, np.array([5, 0, 1, 2, 9]), np.array([4, 1, 2, 3, 0]), "batch", HOST_ACTIONS)
+    assert (inbox.heard, inbox.duplicates) == (3, 0)
+    inbox.offer(3, np.array([2, 0]), np.array([0, 0]), "batch", HOST_ACTIONS)  # heard already: first answer wins
+    assert (inbox.heard, inbox.duplicates) == (3, 2)
+    assert dict(inbox.rejected) == {"unknown agent": 1, "unclaimed": 1}
+    assert inbox.close().tolist() == [1, -1, 3, -1, -1, 4, -1, -1]
