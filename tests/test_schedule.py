@@ -99,6 +99,13 @@ def test_a_rollback_sets_the_clock_back_to_best_pt_and_a_resume_keeps_it(tmp_pat
     assert resumed.schedule.state() == learner.schedule.state()
 
 
+def test_without_a_hold_a_rollback_leaves_the_clock_at_the_episode_count(tmp_path):
+    cfg = make_config("cpu", **TINY, guard_drop=0.5, guard_window=1)
+    learner = Learner(cfg, tmp_path, resume=False, log=lambda *_: None)
+    assert end_sets(learner, [100, 95, 40]) == [1, 2, 3]  # the third set rolls back to episode 1's weights
+    assert (learner.guard.events, learner.episode, learner.schedule.episode) == (1, 3, 3)
+
+
 def test_a_checkpoint_from_before_the_clock_resumes_with_the_clock_at_its_episode(tmp_path):
     cfg = make_config("cpu", **TINY)
     learner = Learner(cfg, tmp_path, resume=False, log=lambda *_: None)

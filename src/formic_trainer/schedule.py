@@ -46,8 +46,10 @@ class ScheduleClock:
         return self.held
 
     def roll_back(self, state: dict) -> None:
-        """Back to ``state``'s clock (best.pt's); the food record starts again."""
-        self.episode, self.window, self.peaks, self.held = state["episode"], [], [], False
+        """Back to ``state``'s clock (best.pt's); the food record starts again. Without a hold
+        the clock stays the episode count (a rollback moves the weights only, as before the clock)."""
+        if self.hold is not None:
+            self.episode, self.window, self.peaks, self.held = state["episode"], [], [], False
 
     def state(self) -> dict:
         return {"episode": self.episode, "window": list(self.window), "peaks": list(self.peaks), "held": self.held}
