@@ -6,8 +6,9 @@
     .venv/bin/python scripts/model_card.py RUN --model models/formic_recipe.pt --check models/formic_recipe.md
 
 RUN is a ``formic train --recipe`` folder: ``recipe.json`` (the recipe, its seed, switch and
-scale, and the stages it trained), each stage's ``latest.pt`` (the settings it trained with and
-its progress), ``selection.json`` (the choice on validation) and ``model.pt``. The block names the
+scale, and the stages it trained), each stage's ``config.json`` (the settings it trained with)
+and ``progress.json`` (its counters; a run trained before the recipe wrote it: its ``latest.pt``),
+``selection.json`` (the choice on validation) and ``model.pt``. The block names the
 file (digest, size, network, parameters), the command that rebuilds it, each stage (episodes,
 what it starts from, what it changes, agent-steps and CPU time), each candidate's validation
 food and the choice, and what an empty pheromone channel costs the chosen one on validation.
@@ -61,8 +62,10 @@ def stage_rows(run: Path, stages: list[dict], preset: str) -> tuple[list[str], f
             "| agent-steps | CPU-h |", "|---|---|---|---|---|---|"]
     before, cpu_seconds = PRESETS[preset].__dict__, 0.0
     for stage in stages:
-        checkpoint = read_checkpoint(run / stage["name"] / "latest.pt")
-        settings, progress = off_as_none(checkpoint["train_config"]), checkpoint["progress"]
+        folder = run / stage["name"]
+        settings = off_as_none(json.loads((folder / "config.json").read_text()))
+        progress = (json.loads((folder / "progress.json").read_text()) if (folder / "progress.json").exists()
+                    else read_checkpoint(folder / "latest.pt")["progress"])
         mean = f", mean of episodes {stage['average'][0]}-{stage['episodes']} every {stage['average'][1]}" \
             if stage.get("average") else ""
         hours = progress["cpu_seconds"] / 3600

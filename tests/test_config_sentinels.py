@@ -22,9 +22,10 @@ ROOT = Path(__file__).resolve().parents[1]
 TRAINING = ROOT / "models" / "training"
 
 # each shipped recipe's identities (every switch, at scales 1, 0.5 and 0.25), as computed before these
-# settings took None for off: a run directory resumes only under the identity its claim holds
+# settings took None for off (paper-v5, written after, as first computed): a run directory resumes
+# only under the identity its claim holds
 SHIPPED_IDENTITIES = {"paper": "a68ab20c7aa1cf40", "paper-v2": "0fb550916b507096", "paper-v3": "bbc98de8088e6e9f",
-                      "paper-v4": "34efba19cbdca2f4", "smoke": "d94b97bcdeafe27e"}
+                      "paper-v4": "34efba19cbdca2f4", "paper-v5": "0b1ff86887a5c889", "smoke": "d94b97bcdeafe27e"}
 
 
 def digest(text: str) -> str:
@@ -34,7 +35,7 @@ def digest(text: str) -> str:
 def test_a_setting_that_is_off_is_none_and_its_old_spelling_reads_as_none():
     assert OFF_SPELLINGS == {"learning_agents": -1, "clip": 0.0, "target_kl": 0.0, "anneal_hold": 0.0,
                              "init_weights": "", "weight_average": 0.0, "imitate": "", "imitation_radius": 0,
-                             "guard_drop": 0.0, "guard_restart": 0}
+                             "guard_drop": 0.0, "guard_restart": 0, "schedule_end": 0}
     cpu = make_config("cpu")
     assert {name: getattr(cpu, name) for name in OFF_SPELLINGS} == dict.fromkeys(OFF_SPELLINGS) | {"clip": 0.2}
     assert make_config("paper").learning_agents == 8 and make_config("paper").clip is None
@@ -112,16 +113,16 @@ def test_every_committed_runs_claim_is_its_recipes_identity_today():
         assert parsed.identity == held_identity(held), claim
 
 
-def test_a_checkpoint_written_before_resumes_under_its_recipe_and_a_changed_setting_is_still_refused(tmp_path):
-    """The paper recipe's seed 1, first stage: its checkpoint holds -1, 0.0, "" and 0 for off."""
-    stored = read_checkpoint(TRAINING / "recipe-paper" / "seed1" / "basics" / "latest.pt")
-    assert {k: stored["train_config"][k] for k in ("learning_agents", "weight_average", "imitate", "init_weights")} \
-        == {"learning_agents": -1, "weight_average": 0.0, "imitate": "", "init_weights": ""}
+def test_a_checkpoint_written_before_resumes_under_its_config_and_a_changed_setting_is_still_refused(tmp_path):
+    """The cpu-v3 run's checkpoint (the one run that keeps its latest.pt): it holds -1 for
+    "every agent learns", from before None meant off."""
+    stored = read_checkpoint(TRAINING / "cpu-v3" / "latest.pt")
+    assert stored["train_config"]["learning_agents"] == -1
     assert off_as_none(stored["train_config"])["learning_agents"] is None
-    run = tmp_path / "basics"
+    run = tmp_path / "cpu-v3"
     run.mkdir()
-    shutil.copy(TRAINING / "recipe-paper" / "seed1" / "basics" / "latest.pt", run / "latest.pt")
-    cfg = stage_config(load_recipe("paper"), 0, tmp_path, seed=1)
+    shutil.copy(TRAINING / "cpu-v3" / "latest.pt", run / "latest.pt")
+    cfg = load_train_config(TRAINING / "cpu-v3" / "config.json")
     learner = Learner(cfg, run, log=lambda line: None)
     learner.writer.close()
     assert (learner.episode, learner.updates) == (stored["progress"]["episode"], stored["progress"]["updates"])

@@ -21,7 +21,8 @@ from formic_eval.matrix import file_digest, layout_seed
 from formic_eval.runner import folder_episodes
 from formic_trainer.actor import filter_probability
 from formic_trainer.config import load_train_config
-from formic_trainer.recipes.definition import stage_config, weights_file
+from formic_trainer.learner import RESUMABLE
+from formic_trainer.recipes.definition import RecipeError, stage_config, trained, weights_file
 from formic_trainer.recipes.files import load_recipe
 from formic_trainer.recipes.run import cpu_seconds_left, run_recipe
 from formic_trainer.recipes.validation import SELECTION_RULE
@@ -498,6 +499,53 @@ def costed_smoke(tmp_path: Path) -> Path:
                       .replace('start = "middle.mean"', 'start = "middle.mean"\ncost = 30')
                       .replace("steps = 128", "steps = 128\ncost = 5"))
     return recipe
+
+
+def test_the_fifth_version_ends_the_reference_stage_on_the_clock():
+    """recipes/paper-v5.toml is paper-v4 with the reference stage ending when its schedule clock
+    reaches 700 (the fade's 600 and 100 unfiltered), capped at 1,200 episodes; those say only where
+    it stops (resumable), so paper-v4's reference stages are its first 800 episodes."""
+    v4, v5 = load_recipe("paper-v4"), load_recipe("paper-v5")
+    assert [(s.name, s.episodes, s.start, s.average) for s in v5.stages] == \
+        [(s.name, 1200 if s.name == "reference" else s.episodes, s.start, s.average) for s in v4.stages]
+    assert (v5.candidates, v5.validation) == (v4.candidates, v4.validation)
+    assert trained(v5.stages[0]) == trained(v4.stages[0])  # the same basics stage (its planned cost aside)
+    differ = {}
+    for i, stage in enumerate(v5.stages):
+        new, old = stage_config(v5, i, Path("run"), seed=1), stage_config(v4, i, Path("run"), seed=1)
+        differ[stage.name] = {k: (getattr(old, k), getattr(new, k)) for k in new.to_dict()
+                              if getattr(new, k) != getattr(old, k)}
+    assert differ["reference"] == {"schedule_end": (None, 700), "total_episodes": (800, 1200)}
+    assert set(differ["reference"]) <= RESUMABLE
+    assert all(not changes for name, changes in differ.items() if name != "reference")
+    cpu_seconds = {"basics": 5.8, "reference": 5.4, "crowd": 11.3, "nonlearning": 4.7, "novalid": 3.9, "novalid128": 4.6}
+    assert {s.name: s.cost for s in v5.stages} == cpu_seconds
+    hours = sum(cpu_seconds[s.name] * s.episodes for s in v5.stages) / 3600 + 0.4  # validation: ~0.4 h
+    assert hours == pytest.approx(4.30, abs=0.01) and hours <= v5.budget_cpu_hours == 5.0
+    assert "1, 2, 3, 4, 5, 6, 7, 8" in v5.text
+
+
+def test_a_stage_that_ends_on_its_clock_hands_on_and_is_complete_on_resume(tmp_path):
+    """The smoke recipe's first stage ends at schedule episode 2 of its 10 (no hold: the clock is
+    the episode count); the next stage starts from it, and a second run skips it as complete."""
+    recipe = tmp_path / "clocked.toml"
+    recipe.write_text(SMOKE_TEXT.replace('episodes = 4\nstart = "scratch"', 'episodes = 10\nstart = "scratch"', 1)
+                      .replace("checkpoint_every = 1\n", "checkpoint_every = 1\nschedule_end = 2\n", 1)
+                      .replace("learning_agents = 1\n", "learning_agents = 1\nschedule_end = 0\n", 1))
+    run_dir, lines = tmp_path / "run", []
+    run_recipe(load_recipe(str(recipe)), run_dir, seed=1, echo=lines.append)
+    assert read_checkpoint(run_dir / "first" / "latest.pt")["progress"]["episode"] == 2
+    assert read_checkpoint(run_dir / "middle" / "latest.pt")["progress"]["episode"] == 4
+    for stage in ("first", "middle", "last"):  # the counters a finished run keeps without its checkpoints
+        assert json.loads((run_dir / stage / "progress.json").read_text()) == \
+            json.loads(json.dumps(read_checkpoint(run_dir / stage / "latest.pt")["progress"]))
+    again: list[str] = []
+    run_recipe(load_recipe(str(recipe)), run_dir, seed=1, echo=again.append)
+    assert "stage 1/3 first: complete (2 episodes), skipped" in again
+    bad = tmp_path / "bad.toml"
+    bad.write_text(SMOKE_TEXT.replace("checkpoint_every = 1\n", "checkpoint_every = 1\nschedule_end = 2\n", 1))
+    with pytest.raises(RecipeError, match="stage 'middle': a mean needs the stage's last episode known"):
+        load_recipe(str(bad))
 
 
 def test_the_time_left_is_each_stages_measured_cost_after_eight_episodes_else_its_planned_one(tmp_path):

@@ -142,6 +142,34 @@ def test_without_a_hold_a_run_logs_no_clock_and_its_clock_is_its_episode(tmp_pat
     assert lines and not any(" sched " in line for line in lines)
 
 
+def test_a_run_ends_when_its_clock_reaches_schedule_end_and_a_resumed_run_finds_it_ended(tmp_path):
+    cfg = make_config("cpu", **TINY, anneal_hold=0.5, schedule_end=5, total_episodes=20)
+    trainer = Trainer(cfg, tmp_path, resume=False, log=lambda *_: None)
+    trainer.learner.schedule.episode = 3  # as if the clock had held for 3 episodes
+    trainer.train()
+    assert (trainer.episode, trainer.learner.schedule.episode, trainer.ended) == (2, 5, True)
+    resumed = Trainer(cfg, tmp_path, log=lambda *_: None)
+    assert resumed.ended
+    resumed.train()
+    assert resumed.episode == 2  # nothing more played
+    # total_episodes still caps a clock that never gets there; without schedule_end the episodes decide
+    capped = Trainer(make_config("cpu", **TINY, anneal_hold=0.5, schedule_end=50, total_episodes=2),
+                     tmp_path / "capped", resume=False, log=lambda *_: None)
+    capped.train()
+    assert (capped.episode, capped.ended) == (2, True)
+    assert not Trainer(make_config("cpu", **TINY, total_episodes=3), tmp_path / "plain", resume=False,
+                       log=lambda *_: None).ended
+
+
+def test_schedule_end_is_resumable_and_zero_is_off(tmp_path):
+    assert make_config("cpu", schedule_end=0).schedule_end is None
+    with pytest.raises(ValueError, match="schedule_end must be > 0"):
+        make_config("cpu", schedule_end=-5)
+    Trainer(make_config("cpu", **TINY, schedule_end=1), tmp_path, resume=False, log=lambda *_: None).train()
+    # the same run resumes with another end (it says where to stop, not what is trained)
+    assert Trainer(make_config("cpu", **TINY, schedule_end=3), tmp_path, log=lambda *_: None).episode == 1
+
+
 def test_distributed_training_refuses_the_hold_with_one_line():
     with pytest.raises(ValueError, match="anneal_hold=0"):
         require_distributable(make_config("cpu", anneal_hold=0.8))

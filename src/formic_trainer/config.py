@@ -61,6 +61,7 @@ class TrainConfig:
     # episode sets whose rolling food < anneal_hold x its peak over the last anneal_memory sets (None: never)
     anneal_hold: float | None = None
     anneal_memory: int = 20
+    schedule_end: int | None = None  # end the run once the schedule clock reaches this (total_episodes caps it; None: off)
     init_weights: str | None = None  # start the network from this checkpoint (warm start / fine-tune)
     weight_average: float | None = None  # decay of a moving average of the weights, as averaged.pt (None: off)
     optimizer: Literal["nadam", "adam"] = "nadam"
@@ -109,7 +110,7 @@ class TrainConfig:
         for name in ("weight_average", "guard_drop", "anneal_hold"):
             if getattr(self, name) is not None and not 0.0 < getattr(self, name) < 1.0:
                 raise ValueError(f"{name} must be in (0, 1), or None or 0 for off, not {getattr(self, name)}")
-        for name in ("clip", "target_kl", "imitation_radius", "guard_restart"):
+        for name in ("clip", "target_kl", "imitation_radius", "guard_restart", "schedule_end"):
             if getattr(self, name) is not None and getattr(self, name) <= 0:
                 raise ValueError(f"{name} must be > 0, or None or 0 for off, not {getattr(self, name)}")
         if self.learning_agents is not None and self.learning_agents < 0:
@@ -136,6 +137,7 @@ class TrainConfig:
 OFF_SPELLINGS: dict[str, float | int | str] = {
     "learning_agents": -1, "clip": 0.0, "target_kl": 0.0, "anneal_hold": 0.0, "init_weights": "",
     "weight_average": 0.0, "imitate": "", "imitation_radius": 0, "guard_drop": 0.0, "guard_restart": 0,
+    "schedule_end": 0,
 }
 
 

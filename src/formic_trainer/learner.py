@@ -23,8 +23,9 @@ from .guard import BEST, ROLL_BACK, WATCH, FallGuard, Verdict
 from .rollout import Rollout
 from .schedule import ScheduleClock
 
-# settings a run may change when it resumes
-RESUMABLE = frozenset({"total_episodes", "threads", "checkpoint_every", "init_weights", "weight_average"})
+# settings a run may change when it resumes (where it stops, how fast, where it started from)
+RESUMABLE = frozenset({"total_episodes", "schedule_end", "threads", "checkpoint_every", "init_weights",
+                       "weight_average"})
 # the counters a checkpoint carries; "seconds" is the learner's wall clock, "cpu_seconds" this
 # process's CPU time over the same spans (what a CPU-hour budget counts: pauses and a busy
 # machine do not inflate it). Checkpoints from before cpu_seconds existed resume with their wall

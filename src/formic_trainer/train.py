@@ -62,11 +62,19 @@ class Trainer:
                              cpu_seconds=time.process_time() - cpu_started)
         return result
 
+    @property
+    def ended(self) -> bool:
+        """Whether the run is over: ``total_episodes`` played, or the schedule clock at ``schedule_end``."""
+        cfg, learner = self.cfg, self.learner
+        return learner.episode >= cfg.total_episodes or (
+            cfg.schedule_end is not None and learner.schedule.episode >= cfg.schedule_end)
+
     def train(self, episodes: int | None = None, minutes: float | None = None) -> None:
+        """Train until the run has ended, or for ``episodes`` more or ``minutes``, whichever comes first."""
         learner = self.learner
         target = self.cfg.total_episodes if episodes is None else learner.episode + episodes
         deadline = None if minutes is None else time.time() + 60 * minutes
-        while learner.episode < target and (deadline is None or time.time() < deadline):
+        while learner.episode < target and not self.ended and (deadline is None or time.time() < deadline):
             stats = self.run_episode_set()
             sps = learner.env_steps / max(learner.seconds, 1e-9)
             per_env = " ".join(f"{stats[f'food_env{i}']:.0f}" for i in range(len(self.cfg.teams)))

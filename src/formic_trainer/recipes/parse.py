@@ -17,8 +17,8 @@ DERIVED = {"preset": "the recipe's preset", "seed": "--seed", "total_episodes": 
 _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]*")
 # TrainConfig (start, end) schedules counted in a stage's episodes: a scaled recipe scales them
 SCHEDULES = (("filter_anneal_start", "filter_anneal_end"), ("curriculum_start", "curriculum_end"))
-# ... and the episode the fall guard starts watching at
-EPISODE_SETTINGS = ("guard_after", "guard_restart")
+# ... and the episodes the fall guard starts watching at and restarts at, and the clock's end
+EPISODE_SETTINGS = ("guard_after", "guard_restart", "schedule_end")
 
 
 def _keys(table: dict, where: str, required: set[str], optional: set[str] = frozenset()) -> dict:
@@ -139,6 +139,9 @@ def parse_recipe(data: dict, path: Path, text: str, switch: str = "", scale: flo
                        _number(table["average"], "every", f"{where}.average"))
             if average[0] > episodes:
                 raise RecipeError(f"{where}.average.first ({average[0]}) is beyond its {episodes} episodes")
+            if cfg.schedule_end is not None:
+                raise RecipeError(f"{where}: a mean needs the stage's last episode known, so no schedule_end "
+                                  "(set schedule_end = 0 in this stage)")
         if any(n % worlds for n in (episodes, *(average or ()))):
             raise RecipeError(f"{where}: episodes and average must be multiples of its {worlds} worlds "
                               "(one episode set plays one episode in each)")

@@ -1,6 +1,7 @@
 """Running a recipe: each stage trained (or skipped, or resumed) in its folder, the snapshots
-its checkpoint mean needs, the mean, and the progress line's budget and time left; the
-validation and the choice that end a run are :mod:`.validation`'s."""
+its checkpoint mean needs, the mean, each finished stage's ``progress.json`` (its counters, which
+the model card reads once the checkpoints are gone), and the progress line's budget and time
+left; the validation and the choice that end a run are :mod:`.validation`'s."""
 
 from __future__ import annotations
 
@@ -48,11 +49,19 @@ def cpu_seconds_left(recipe: Recipe, index: int, episode: int = 0, cpu_seconds: 
 
 
 def _progress(checkpoint: Path) -> dict:
-    """The counters of a stage's ``latest.pt`` (zero before it exists)."""
+    """The counters of a stage's ``latest.pt`` (zero before it exists): episodes, CPU-seconds and
+    the schedule clock's episode."""
     if not checkpoint.exists():
-        return {"episode": 0, "cpu_seconds": 0.0}
+        return {"episode": 0, "cpu_seconds": 0.0, "schedule": 0}
     progress = read_checkpoint(checkpoint)["progress"]
-    return {"episode": progress["episode"], "cpu_seconds": progress.get("cpu_seconds", progress["seconds"])}
+    return {"episode": progress["episode"], "cpu_seconds": progress.get("cpu_seconds", progress["seconds"]),
+            "schedule": progress.get("schedule", {"episode": progress["episode"]})["episode"]}
+
+
+def _ended(stage: Stage, progress: dict) -> bool:
+    """Whether a stage at ``progress`` is over: its episodes played, or its clock at ``schedule_end``."""
+    end = stage.settings.get("schedule_end") or None  # 0 spells off in a recipe
+    return progress["episode"] >= stage.episodes or (end is not None and progress["schedule"] >= end)
 
 
 def run_recipe(recipe: Recipe, run_dir: Path, seed: int, echo: Callable[[str], None] = print,
@@ -106,9 +115,9 @@ class RecipeRun:
         stage, count = self.recipe.stages[index], len(self.recipe.stages)
         where = self.run_dir / stage.name
         progress = _progress(where / "latest.pt")
-        episode = progress["episode"]
-        if episode >= stage.episodes:
-            self.echo(f"stage {index + 1}/{count} {stage.name}: complete ({stage.episodes} episodes), skipped")
+        episode, ended = progress["episode"], _ended(stage, progress)
+        if ended:
+            self.echo(f"stage {index + 1}/{count} {stage.name}: complete ({episode} episodes), skipped")
         else:
             fresh = "" if stage.start == "scratch" else " (a fresh optimiser)"
             resume = f", resuming at episode {episode}" if episode else ""
@@ -116,22 +125,24 @@ class RecipeRun:
             self.echo(f"stage {index + 1}/{count} {stage.name}: {stage.episodes} episodes from {stage.start}{fresh}"
                       f"{resume} | {self.budget(index, episode, progress['cpu_seconds'])}")
             cfg = stage_config(self.recipe, index, self.run_dir, self.seed, self.threads)
-            while episode < stage.episodes:
+            while not ended:
                 self.snapshot(stage, episode)
                 self.trainer = None  # while it starts: its lines carry no budget yet
                 self.trainer = Trainer(cfg, where, log=lambda line: self.log(index, line))
                 stop = min([e for e in stage.snapshots() if e > episode] + [stage.episodes])
                 self.trainer.train(episodes=stop - episode)
-                episode = self.trainer.episode
+                episode, ended = self.trainer.episode, self.trainer.ended
             self.trainer = None
         self.snapshot(stage, episode)
+        # the stage's counters where they outlive its checkpoint (a finished run keeps no latest.pt)
+        write_json(where / "progress.json", read_checkpoint(where / "latest.pt")["progress"])
         if stage.average is not None:
             self.average(stage)
         wanted = {s.start for s in self.recipe.stages} | set(self.recipe.candidates)
         if f"{stage.name}.best" in wanted and not (where / "best.pt").exists():
             raise RecipeError(f"{where}: no best.pt, which {stage.name}.best names: its fall guard never saw "
                               "guard_window episode sets after guard_after")
-        self.episodes += stage.episodes
+        self.episodes += episode
         self.cpu_seconds += _progress(where / "latest.pt")["cpu_seconds"]
 
     def log(self, index: int, line: str) -> None:
