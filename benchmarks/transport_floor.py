@@ -5,9 +5,12 @@
 Each round runs, on one scenario and seed: ``formic sim`` (steps/s from its decision + world
 time a step), ``formic run --transport batched``, ``formic run --transport per-agent`` (steps/s
 after step 0, as their summaries say) and ``benchmarks/rclpy_publish.py`` (the cost of one
-rclpy publish to another process, measured in the same run). The serial publish floor of the
-per-agent transport is ``formic sim``'s step plus two publishes an agent (its observation and
-its action), one after the other. Printed: medians over the rounds, the ratios (each the median
+rclpy publish to another process, measured in the same run, of an ``AgentAction`` and of the
+world's serialized 3.9 kB ``AgentObservation``). The serial publish floor of the per-agent
+transport is ``formic sim``'s step plus two publishes an agent, one after the other: two small
+ones (``floor``, as the target was set) and, beside it, the messages the transport sends (one
+observation and one action an agent: ``message floor``), and those messages with the reader's CPU
+time to take each (``with takes``: a bound from the other side, as if nothing overlapped). Printed: medians over the rounds, the ratios (each the median
 of the rounds' own ratios: a busy machine's speed drifts from round to round, and the paths of
 one round run minutes apart at most), and whether food and state digest equal ``formic sim``'s
 in every run:
@@ -43,9 +46,11 @@ def one_round(world: list[str], agents: int, domain_id: int, out: Path) -> dict:
     for transport in ("batched", "per-agent"):
         run = run_json([*FORMIC, "run", *world, "--transport", transport, "--domain-id", str(domain_id), "--json"])
         row[transport] = (run["steps_per_s"], run["food"], run["state_digest"])
-    publish = run_json([sys.executable, str(ROOT / "benchmarks" / "rclpy_publish.py"), "--topics", str(agents),
-                        "--rounds", "100", "--domain-id", str(domain_id), "--json"])
-    row["us_per_publish"] = publish["us_per_publish"]
+    for message in ("action", "observation"):
+        publish = run_json([sys.executable, str(ROOT / "benchmarks" / "rclpy_publish.py"), "--topics", str(agents),
+                            "--rounds", "100", "--message", message, "--domain-id", str(domain_id), "--json"])
+        row[f"us_per_{message}"] = publish["us_per_publish"]
+        row[f"us_per_{message}_take"] = publish["us_per_take"]
     return row
 
 
@@ -65,10 +70,15 @@ def main() -> None:
              "--seed", str(args.seed), "--policy", args.policy]
     rounds = [one_round(world, args.agents, args.domain_id, args.out) for _ in range(args.rounds)]
     for r in rounds:  # serial: sim's step, then 2N publishes
-        r["floor"] = (1.0 / (1.0 / r["sim"][0] + 2 * args.agents * r["us_per_publish"] * 1e-6),)
-    median = {key: statistics.median(r[key][0] for r in rounds) for key in ("sim", "floor", "batched", "per-agent")}
-    publish_us = statistics.median(r["us_per_publish"] for r in rounds)
-    floor = median["floor"]
+        r["floor"] = (1.0 / (1.0 / r["sim"][0] + 2 * args.agents * r["us_per_action"] * 1e-6),)
+        r["message floor"] = (1.0 / (1.0 / r["sim"][0] + args.agents * (r["us_per_action"] + r["us_per_observation"])
+                                     * 1e-6),)
+        r["with takes"] = (1.0 / (1.0 / r["sim"][0] + args.agents * 1e-6 * sum(
+            r[f"us_per_{m}{part}"] for m in ("action", "observation") for part in ("", "_take"))),)
+    paths = ("sim", "floor", "message floor", "with takes", "batched", "per-agent")
+    median = {key: statistics.median(r[key][0] for r in rounds) for key in paths}
+    action_us, observation_us, take_us = (statistics.median(r[key] for r in rounds) for key in (
+        "us_per_action", "us_per_observation", "us_per_observation_take"))
 
     def ratio(over: str, key: str) -> float:
         return statistics.median(r[over][0] / r[key][0] for r in rounds)
@@ -78,12 +88,15 @@ def main() -> None:
 
     print(f"{args.agents} agents, {args.size}x{args.size}, {args.steps} steps, seed {args.seed}, "
           f"policy {args.policy}; medians of {args.rounds} round(s)")
-    print(f"publish: {publish_us:.1f} us ({args.agents} topics); per-agent serial floor: {floor:.0f} steps/s "
-          f"({ratio('sim', 'floor'):.2f}x formic sim)")
-    print(f"{'path':<22}{'steps/s':>9}{'vs sim':>9}{'vs floor':>10}   rounds")
-    for key, label in (("sim", "formic sim"), ("batched", "run batched"), ("per-agent", "run per-agent")):
+    print(f"publish ({args.agents} topics): {action_us:.1f} us an action, {observation_us:.1f} us an observation "
+          f"(taking one: {take_us:.1f} us); "
+          f"per-agent serial floor {median['floor']:.0f} steps/s ({ratio('sim', 'floor'):.2f}x formic sim), "
+          f"with its own messages {median['message floor']:.0f} ({ratio('sim', 'message floor'):.2f}x)")
+    print(f"{'path':<22}{'steps/s':>9}{'vs sim':>9}{'vs floor':>10}{'vs msg floor':>14}   rounds")
+    for key, label in (("sim", "formic sim"), ("floor", "floor (2 actions)"), ("message floor", "floor (obs + action)"),
+                       ("with takes", "floor with takes"), ("batched", "run batched"), ("per-agent", "run per-agent")):
         each = " ".join(f"{r[key][0]:.0f}" for r in rounds)
-        ratios = f"{ratio('sim', key):>8.2f}x{ratio('floor', key):>9.2f}x"
+        ratios = f"{ratio('sim', key):>8.2f}x{ratio('floor', key):>9.2f}x{ratio('message floor', key):>13.2f}x"
         print(f"{label:<22}{median[key]:>9.0f}{ratios}   {each}")
     print(f"food {expected[0]}, digest {expected[1]}: "
           + ("equal in every run" if same else "DIFFERENT: " + json.dumps(rounds)))

@@ -22,6 +22,7 @@ torch = pytest.importorskip("torch")
 from ros_helpers import Spawner, fresh_domain_id  # noqa: E402
 
 from formic_agent.checkpoint import read_checkpoint  # noqa: E402
+from formic_ros.drivers.lag import AHEAD_CHUNKS  # noqa: E402
 from formic_trainer.config import make_config  # noqa: E402
 from formic_trainer.train import Trainer  # noqa: E402
 
@@ -142,3 +143,39 @@ def test_a_trainer_killed_and_restarted_from_its_checkpoint_goes_on_with_the_act
                for host_log in host_logs)
     saved = read_checkpoint(run_dir / "latest.pt")["progress"]
     assert (saved["updates"], saved["episode"]) == (6, 6)
+
+
+def test_asynchronous_actors_update_from_every_rollout_as_it_comes(tmp_path):
+    """`--switch-weights newest`: an actor waits only when it is AHEAD_CHUNKS rollouts ahead of
+    its weights, the trainer makes one update from each actor's rollout (2 actors x 2 episodes x
+    2 chunks = 8), within its lag bound, and each
+    actor's episode end is one episode of the learning curve. The scenarios are the same as
+    synchronous training's (they do not depend on the weights); the learning is not."""
+    config_file = tmp_path / "train_config.json"
+    config_file.write_text(json.dumps(CFG.to_dict()))
+    spawner = Spawner(tmp_path, fresh_domain_id())
+    try:
+        run = spawner.formic("train_ros_async", "train-ros", "--train-config", str(config_file), "--actors", "2",
+                             "--switch-weights", "newest", "--run-dir", str(tmp_path / "async"), "--episodes", "4",
+                             "--domain-id", str(spawner.domain_id), "--timeout", "100", "--json", "--fresh",
+                             limit_s=130)
+        assert run.wait() == 0, run.output()[-3000:]
+        result, output = run.json_line(), run.output()
+    finally:
+        spawner.reap_all()
+    trainer = Trainer(CFG, tmp_path / "draws", resume=False, log=lambda _: None)
+    seeds = []
+    for episode in (0, 2):
+        trainer.envs.reset(episode)
+        seeds += [(episode, k, w.scenario.seed) for k, w in enumerate(trainer.envs.worlds)]
+    trainer.close()
+    assert [(e["episode"], e["actor"], e["seed"]) for e in result["episodes"]] == seeds
+    assert all(e["missed_actions"] == 0 for e in result["episodes"])
+    done = result["trainer"]
+    assert (done["updates"], done["dropped"], done["lost"], done["version"]) == (8, 0, 0, 8)
+    assert done["timing"]["timed_updates"] == 7 and set(done["timing"]) == {"timed_updates", "updates_per_s"}
+    assert set(result["exit_codes"].values()) == {0}
+    saved = read_checkpoint(tmp_path / "async" / "latest.pt")["progress"]
+    assert (saved["episode"], saved["updates"]) == (4, 8)
+    lags = [int(lag) for lag in re.findall(r"update \d+: .*?lag (\d+)", output)]  # the trainer's log lines
+    assert len(lags) == 8 and max(lags) <= 2 * AHEAD_CHUNKS * 2  # the trainer's bound for 2 actors

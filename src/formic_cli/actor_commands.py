@@ -27,6 +27,9 @@ def _print_episode(summary: dict) -> None:
               help="Lockstep deadline; a step can wait for an update, so it is long.")
 @click.option("--startup-timeout", "startup_timeout_s", default=120.0, show_default=True,
               help="Seconds step 0 waits for the learning host.")
+@click.option("--switch-weights", "switch", type=click.Choice(["chunk", "newest"]), default="chunk", show_default=True,
+              help="Wait for each update (a synchronous trainer), or act on with the newest weights "
+                   "(`formic trainer --actors K --asynchronous`).")
 @click.option("--log-dir", type=click.Path(file_okay=False), help="Write each process's log here.")
 @click.option("--timeout", "timeout_s", type=float, help="Give up after this many seconds.")
 @ros_options()

@@ -18,7 +18,7 @@ from .robot_commands import (robot, robot_run_options, robots_sim, run_robot_opt
 from .summary import click_errors, emit, emit_json, print_episode_summary
 
 TRANSPORT = click.Choice(["per-agent", "batched"])
-SWITCH = click.Choice(["chunk", "episode"])
+SWITCH = click.Choice(["chunk", "episode", "newest"])
 
 
 def lockstep_options(deadline_ms: float = 1000.0,
@@ -200,7 +200,8 @@ def world(scenario_file, domain_id, deadline_ms, stay, train_config, episodes, f
                    "under this training configuration (a run directory's config.json); --policy is ignored.")
 @click.option("--switch-weights", type=SWITCH, default="chunk", show_default=True,
               help="Learning mode: wait for each rollout's update and act on with it (as `formic train`), "
-                   "or never wait and take the newest weights at each episode start.")
+                   "wait at each episode start for the updates of its rollouts, or never wait and take the "
+                   "newest weights at each chunk start (asynchronous).")
 @click.option("--episodes", type=int, help="Learning mode: exit after this many episodes.")
 @click.option("--first-episode", default=0, show_default=True,
               help="Learning mode: global episode number of the first episode (a resumed run's).")
@@ -237,7 +238,8 @@ def agents(ids, policy, model, greedy, transport, namespace, domain_id, name, th
 @click.option("--episodes", type=int, required=True, help="Environment episodes to add in this call.")
 @fresh_option
 @click.option("--switch-weights", "switch", type=SWITCH, default="chunk", show_default=True,
-              help="Hosts wait for each rollout's update (as `formic train`), or take new weights per episode.")
+              help="Hosts wait for each rollout's update (as `formic train`), take new weights per episode, or "
+                   "take the newest at each chunk without waiting (with --actors: asynchronous updates).")
 @click.option("--actors", type=click.IntRange(min=1), default=1, show_default=True,
               help="Actors (a world and its learning host each), one per world of the config; >1: docs/ros.md.")
 @lockstep_options(deadline_ms=120000.0, startup_timeout=120.0, viewer_every=0, rate=False,

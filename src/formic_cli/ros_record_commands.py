@@ -158,18 +158,24 @@ def replay_command(recording, verify, republish, repair, live_view, view_port, v
               help="Wait for this many actors (`formic actor`, one per world) and update from all their rollouts.")
 @click.option("--actor-deadline", "actor_deadline_s", default=30.0, show_default=True,
               help="With --actors: seconds after an update's first rollout before it goes on without a silent actor.")
+@click.option("--asynchronous", is_flag=True,
+              help="With --actors: one update from each actor's rollout as it comes, up to --max-lag versions old "
+                   "(the actors run with --switch-weights newest); changes learning.")
 @ros_options(domain_help=PROCESS_DOMAIN_HELP)
 @json_option(help="Print one JSON object at the end.")
 def trainer_command(preset, run_dir, fresh, train_config, overrides, max_updates, max_rollouts, max_lag, namespace,
-                    domain_id, as_json, actors, actor_deadline_s) -> None:
+                    domain_id, as_json, actors, actor_deadline_s, asynchronous) -> None:
     """The trainer node: learn from the hosts' rollouts, broadcast versioned weights."""
     from formic_ros.drivers.trainer import serve_trainer
 
     with click_errors(TypeError, ValueError):
+        if asynchronous and not actors:
+            raise click.UsageError("--asynchronous goes with --actors K (a plain trainer learns from every rollout "
+                                   "as it comes already)")
         cfg = training_config(preset, train_config, overrides)
         result = serve_trainer(cfg, Path(run_dir), resume=not fresh, namespace=namespace, domain_id=domain_id,
                                max_updates=max_updates, max_rollouts=max_rollouts, max_lag=max_lag, log=_log,
-                               actors=actors, actor_deadline_s=actor_deadline_s)
+                               actors=actors, actor_deadline_s=actor_deadline_s, synchronous=not asynchronous)
     emit(as_json, result, f"trainer stopped at weights version {result['version']} ({result['updates']} "
          f"updates here, {result['dropped']} rollouts dropped); checkpoint in {run_dir}/latest.pt")
 

@@ -72,6 +72,7 @@ _OFFERED: dict[str, QoSProfile] = {  # by each topic's publishers
     topics.AGENT_ACTION: STREAM_WRITER,  # under agent_K/
     topics.ROLLOUTS: ROLLOUT,
     topics.WEIGHTS: LATCHED,
+    topics.ROLLOUTS_TAKEN: LATCHED,
     topics.CLAIMS: LATCHED,
     topics.OWNERS: LATCHED,
     topics.RECORDER_MATCHES: LATCHED,

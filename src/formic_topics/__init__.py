@@ -25,6 +25,7 @@ AGENT_OBSERVATION = "observation"  # under the agent node: /formic/agent_K/obser
 AGENT_ACTION = "action"  # /formic/agent_K/action
 ROLLOUTS = "rollouts"  # learning hosts -> trainer
 WEIGHTS = "weights"  # trainer -> learning hosts
+ROLLOUTS_TAKEN = "rollouts_taken"  # asynchronous actors' trainer -> their hosts: rollouts taken from each actor
 CLAIMS = "claims"  # driver nodes -> world: the agents each drives (formic_ros.world.claims)
 OWNERS = "owners"  # world -> driver nodes: who drives which agent
 RECORDER_MATCHES = "recorder_matches"  # recorders -> world and drivers: what each recorder's readers matched
@@ -63,6 +64,7 @@ TOPIC_TYPES: dict[str, str] = {
     AGENT_ACTION: AGENT_ACTION_TYPE,  # under agent_K/
     ROLLOUTS: ROLLOUT_TYPE,
     WEIGHTS: WEIGHTS_TYPE,
+    ROLLOUTS_TAKEN: STRING_TYPE,
     CLAIMS: STRING_TYPE,
     OWNERS: STRING_TYPE,
     RECORDER_MATCHES: STRING_TYPE,

@@ -17,19 +17,30 @@ the hosts act with its weights from their next chunk on (a learning host's resta
 time away (weights out until the first rollout of them is in: weights crossing, acting,
 rollout crossing), the gather (first to last actor's rollout) and learning (the update and
 publishing its weights): what docs/ros.md's lossy-link figures are made of.
+
+Asynchronous (``synchronous=False``, the actors' hosts on ``switch="newest"``): every actor's
+rollout is one update as it comes, when it is at most ``max_lag`` versions old (older ones are
+dropped, counted), and each actor's episode end is one episode of the learning curve with its
+own food. The node publishes how many rollouts it has taken from each actor (``rollouts_taken``,
+JSON, latched): a host runs at most ``AHEAD_CHUNKS`` rollouts ahead of it, so when the learner is
+the slower side the actors wait rather than the queue and the lag growing. The actors never wait, so learning changes: an update follows one world's rollout, and
+the weights that acted may be a few versions old (docs/ros.md, "Actors").
 """
 
 from __future__ import annotations
 
+import json
 import time
 
 import numpy as np
 from formic_interfaces.msg import Rollout as RolloutMsg
+from std_msgs.msg import String
 
 import formic_topics as topics
 from formic_trainer.learner import Learner
 from formic_trainer.rollout import Rollout, join_rollouts
 
+from .. import qos
 from .trainer import TrainerNode
 
 
@@ -37,7 +48,7 @@ class ActorsTrainerNode(TrainerNode):
     """Node ``trainer`` for ``actors`` actors, one per meta-agent world of the configuration."""
 
     def __init__(self, learner: Learner, actors: int, namespace: str = topics.DEFAULT_NAMESPACE,
-                 deadline_s: float = 30.0):
+                 deadline_s: float = 30.0, synchronous: bool = True, max_lag: int = 0):
         teams = learner.cfg.teams
         if actors != len(teams):
             raise ValueError(f"{actors} actors for {len(teams)} worlds (teams={list(teams)}): one actor per world")
@@ -48,8 +59,13 @@ class ActorsTrainerNode(TrainerNode):
         self.published_at: float | None = None  # when the newest update's weights went out
         self.first_update_at = 0.0
         self.phases_s = {"away": 0.0, "gather": 0.0, "learn": 0.0}  # summed over the updates after the first
-        super().__init__(learner, namespace, max_lag=0)
+        self.synchronous = synchronous
+        self.actor_food = np.zeros(actors)  # asynchronous: each actor's food in its episode so far
+        self.taken = np.zeros(actors, dtype=np.int64)  # asynchronous: rollouts taken from each actor
+        super().__init__(learner, namespace, max_lag=0 if synchronous else max_lag)
         self.episodes_per_end = actors
+        if not synchronous:
+            self.taken_pub = self.create_publisher(String, topics.ROLLOUTS_TAKEN, qos.LATCHED)
 
     def actor_of(self, rollout: Rollout) -> int:
         return int(np.searchsorted(self.world_starts, rollout.agent_ids[0], side="right") - 1)
@@ -58,6 +74,15 @@ class ActorsTrainerNode(TrainerNode):
         if (rollout := self.take(msg)) is None:
             return
         actor = self.actor_of(rollout)
+        if not self.synchronous:  # one update a rollout, within max_lag; the actor hears it was taken
+            updates = self.updates
+            self.learn_if_fresh(rollout)
+            if self.updates > updates:
+                self.published_at = time.monotonic()
+                self.first_update_at = self.first_update_at or self.published_at
+            self.taken[actor] += 1
+            self.taken_pub.publish(String(data=json.dumps({str(k): int(n) for k, n in enumerate(self.taken)})))
+            return
         if rollout.weights_version != self.learner.version or actor in self.pending:
             self.drop(f"actor {actor}'s rollout of weights version {rollout.weights_version} (now gathering "
                       f"version {self.learner.version}'s)")
@@ -82,14 +107,26 @@ class ActorsTrainerNode(TrainerNode):
                 self.phases_s[phase] += seconds
         self.published_at = published
 
+    def close_episode(self, rollout: Rollout) -> str:
+        if self.synchronous:
+            return super().close_episode(rollout)
+        actor = self.actor_of(rollout)
+        self.actor_food[actor] += rollout.food
+        if not rollout.done:
+            return ""
+        food, self.actor_food[actor] = self.actor_food[actor], 0.0
+        self.learner.end_episodes(1, {"food_mean": float(food)})
+        return f"; actor {actor}'s episode food {food:.1f}"
+
     def timing(self) -> dict:
-        """Updates per second and the mean seconds an update spends in each phase, over the
-        updates after the first (whose wait includes the actors' start-up)."""
+        """Updates per second and (synchronous) the mean seconds an update spends in each phase,
+        over the updates after the first (whose wait includes the actors' start-up)."""
         timed = self.updates - 1
         if timed < 1:
             return {"timed_updates": 0}
-        return {"timed_updates": timed, "updates_per_s": timed / (self.published_at - self.first_update_at)} | {
-            f"{phase}_s": seconds / timed for phase, seconds in self.phases_s.items()}
+        rate = {"timed_updates": timed, "updates_per_s": timed / (self.published_at - self.first_update_at)}
+        return rate | ({f"{phase}_s": seconds / timed for phase, seconds in self.phases_s.items()}
+                       if self.synchronous else {})
 
     def report_silence(self) -> None:
         """Also the gather's deadline: actors silent for ``deadline_s`` since an update's first

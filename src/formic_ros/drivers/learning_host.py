@@ -8,6 +8,7 @@ messages. :func:`serve_learning_agents` runs one.
 
 from __future__ import annotations
 
+import json
 import os
 import time
 from contextlib import suppress
@@ -18,6 +19,7 @@ from rclpy.duration import Duration
 from rclpy.node import Node
 from formic_interfaces.msg import ActionBatch, ObservationBatch, ScenarioDescription, Weights
 from formic_interfaces.msg import Rollout as RolloutMsg
+from std_msgs.msg import String
 
 from formic_agent.policy import AgentBatch
 import formic_topics as topics
@@ -33,11 +35,12 @@ from ..parameters import declare_settings
 from ..wire import read
 from .claim import Claim
 from .host_actor import HostActor
+from .lag import AHEAD_CHUNKS
 from .protocol import DriverProtocol, Turn
 from .world_watch import WorldWatch, read_scenario
 
 
-SWITCH_MODES = ("chunk", "episode")
+SWITCH_MODES = ("chunk", "episode", "newest")
 WEIGHTS_WAIT_LOG_S = 10.0  # while a host waits for weights, it says so this often
 
 
@@ -55,7 +58,11 @@ class LearningHost(Node):
     learns from its first chunks; at the next episode's start the host waits for the updates
     of all its rollouts and takes the newest weights (each rollout carries what the weights that
     acted computed, so the trainer's PPO ratio is taken against them; with one host the lag
-    stays below the chunks per episode).
+    stays below the chunks per episode). ``switch="newest"`` (asynchronous actors): at each
+    chunk's start the host acts on with the newest weights it has, without waiting for the
+    update of the rollout it just sent; but it waits while ``AHEAD_CHUNKS`` of its rollouts are
+    not yet taken by the trainer (``rollouts_taken``): the bound on its lag when the learner is
+    the slower side (the trainer drops rollouts more than ``max_lag`` versions old).
 
     An actor's host (``formic train-ros --actors K``, ``formic actor``) serves world
     ``world_index`` of the configuration's meta-agent worlds (its agents team-wide from that
@@ -76,7 +83,7 @@ class LearningHost(Node):
         if switch not in SWITCH_MODES:
             raise ValueError(f"unknown weights switch {switch!r}; choose from {', '.join(SWITCH_MODES)}")
         torch.set_num_threads(threads)
-        self.switch = switch
+        self.switch, self.world_index = switch, world_index
         super().__init__(name or f"agent_host_{os.getpid()}", namespace=namespace)
         declare_settings(self, {"agent_ids": [int(a) for a in agent_ids], "switch": switch,
                                         "first_episode": first_episode, "threads": threads,
@@ -91,13 +98,18 @@ class LearningHost(Node):
         self.weights_sub = self.create_subscription(Weights, weights, self._on_weights, qos.LATCHED)
         self.actions_pub = self.create_publisher(ActionBatch, f"~/{topics.ACTIONS}", qos.STREAM_WRITER)
         self.claim = Claim(self, list(self.ids), self.actions_pub.topic_name, publishers=[self.actions_pub])
+        self.taken, self.sent_base = 0, 0  # switch "newest": rollouts the trainer took; sent before its restart
+        self.ahead_wait = False  # switch "newest": waiting for the trainer to take this host's rollouts
+        if switch == "newest":
+            self.create_subscription(String, topics.full_name(trainer_namespace or namespace, topics.ROLLOUTS_TAKEN),
+                                     self._on_taken, qos.LATCHED)
         self.rollouts_pub = self.create_publisher(RolloutMsg, topics.full_name(trainer_namespace or namespace,
                                                                               topics.ROLLOUTS), qos.ROLLOUT)
         self.protocol = DriverProtocol(whole_episodes=True)
         self.scenario: Scenario | None = None  # the newest scenario
         self.horizon = -1  # its episode's steps (-1: none yet)
         self.episodes = 0  # episodes finished
-        self.episode_rollouts = 0  # rollouts sent in the current episode with the weights loaded
+        self.episode_rollouts = 0  # rollouts sent with the weights loaded (switch "episode": in this episode)
         self.rollouts_sent = 0
         self.held: ObservationBatch | None = None  # newest observations not dealt with yet
         self.ready: tuple[AgentBatch, Frame] | None = None  # to act on once the weights allow
@@ -123,7 +135,16 @@ class LearningHost(Node):
             self.log.warning(f"weights version {msg.version} after version {self.newest.version}: the trainer "
                              "restarted; acting with them from the next chunk")
             self.restarted = True
+            self.sent_base = self.rollouts_sent  # a restarted trainer counts the rollouts it takes from 0
         self.newest = msg
+        self.pump()
+
+    def _on_taken(self, msg: String) -> None:
+        try:
+            self.taken = int(json.loads(msg.data).get(str(self.world_index), 0))
+        except (ValueError, AttributeError, TypeError):
+            self.log.error(f"a malformed rollouts_taken message: {msg.data[:80]!r}", once=True)
+            return
         self.pump()
 
     def _on_batch(self, msg: ObservationBatch) -> None:
@@ -175,7 +196,10 @@ class LearningHost(Node):
         self.rollouts_pub.publish(encode_rollout(rollout))
         self.episode_rollouts += 1
         self.rollouts_sent += 1
-        if self.switch == "chunk" or self.restarted:  # act on with the weights this rollout makes (or a restart's)
+        if self.switch == "newest":  # on with the newest weights there are, unless too far ahead of the trainer
+            self.ahead_wait = True
+            self._start_waiting()
+        elif self.switch == "chunk" or self.restarted:  # act on with the weights this rollout makes (or a restart's)
             self.wait_version = self.actor.weights_version
             self._start_waiting()
         elif done:  # start the next episode with the weights all of this one's make
@@ -187,7 +211,21 @@ class LearningHost(Node):
         self.waiting_since = time.monotonic()
         self.next_wait_report = self.waiting_since + WEIGHTS_WAIT_LOG_S
 
+    def _in_flight(self) -> int:
+        """Rollouts this host sent that the (asynchronous) trainer has not taken yet."""
+        return self.rollouts_sent - self.sent_base - self.taken
+
     def _weights_ready(self) -> bool:
+        if self.wait_version is None and self.ahead_wait:  # a chunk's start, switch "newest"
+            if self._in_flight() >= AHEAD_CHUNKS:
+                if time.monotonic() > self.next_wait_report:
+                    self.log.warning(f"waited {time.monotonic() - self.waiting_since:.0f} s for the trainer to take "
+                                     f"this host's rollouts ({self._in_flight()} of {self.rollouts_sent} not taken)")
+                    self.next_wait_report = time.monotonic() + WEIGHTS_WAIT_LOG_S
+                return False
+            if self.newest.version != self.actor.weights_version:
+                self.actor.load_weights(self.newest)
+            self.ahead_wait = self.restarted = False
         if self.wait_version is None:
             return True
         # and a trainer's reader matched: a rollout published before that is never delivered (volatile), which

@@ -75,8 +75,12 @@ class TrainerNode(Node):
             return None
 
     def on_rollout(self, msg: RolloutMsg) -> None:
-        if (rollout := self.take(msg)) is None:
-            return
+        if (rollout := self.take(msg)) is not None:
+            self.learn_if_fresh(rollout)
+
+    def learn_if_fresh(self, rollout: Rollout) -> None:
+        """An update from ``rollout`` unless it is more than ``max_lag`` versions old (or of a
+        version this trainer has not made): then it is dropped, counted."""
         lag = self.learner.version - rollout.weights_version
         if lag < 0:  # versions only grow: a previous trainer's, this one resumed from an older checkpoint
             self.drop(f"a rollout of weights version {rollout.weights_version}, newer than this trainer's "
@@ -94,15 +98,20 @@ class TrainerNode(Node):
         self.updates += 1
         self.broadcast()
         self.learner.record("ros", stats | {"lag": lag, "rollout_food": rollout.food}, self.learner.version)
-        self.episode_food += rollout.food
         line = (f"update {self.learner.version}: {rollout.steps}x{len(rollout.agent_ids)} (episode "
                 f"{rollout.episode}, lag {lag}, food {rollout.food:.1f}) loss {stats['loss']:.3f}")
-        if rollout.done and rollout.episode > self.ended:  # several hosts: the first one's end counts
-            self.ended = rollout.episode
-            self.learner.end_episodes(self.episodes_per_end, {"food_mean": self.episode_food / self.episodes_per_end})
-            line += f"; episode food {self.episode_food:.1f}"
-            self.episode_food = 0.0
-        self.get_logger().info(line)
+        self.get_logger().info(line + self.close_episode(rollout))
+
+    def close_episode(self, rollout: Rollout) -> str:
+        """The learning curve's part of a rollout learned from: its food, and the episode's end
+        when it ends one (the log line's ending)."""
+        self.episode_food += rollout.food
+        if not (rollout.done and rollout.episode > self.ended):  # several hosts: the first one's end counts
+            return ""
+        self.ended = rollout.episode
+        self.learner.end_episodes(self.episodes_per_end, {"food_mean": self.episode_food / self.episodes_per_end})
+        line, self.episode_food = f"; episode food {self.episode_food:.1f}", 0.0
+        return line
 
     def drop(self, what: str) -> None:
         self.dropped += 1
@@ -134,12 +143,13 @@ class TrainerNode(Node):
 def serve_trainer(cfg: TrainConfig, run_dir: Path, resume: bool = True, namespace: str = topics.DEFAULT_NAMESPACE,
                   domain_id: int | None = None, max_updates: int | None = None, max_rollouts: int | None = None,
                   max_lag: int = DEFAULT_MAX_LAG, log: Callable[[str], None] = print, actors: int = 0,
-                  actor_deadline_s: float = 30.0) -> dict:
+                  actor_deadline_s: float = 30.0, synchronous: bool = True) -> dict:
     """Run node ``trainer`` until SIGINT/SIGTERM, ``max_updates`` updates or ``max_rollouts``
     rollouts received (learned or dropped: what a launcher knows its hosts send). The
     checkpoint is saved on every exit but a SIGKILL (and every ``cfg.checkpoint_every``
     episodes, atomically). ``actors`` > 0: each update waits for every actor's rollout, at most
-    ``actor_deadline_s`` after the first (:mod:`formic_ros.drivers.actors_trainer`)."""
+    ``actor_deadline_s`` after the first, or (not ``synchronous``) is made from each actor's
+    rollout as it comes, up to ``max_lag`` versions old (:mod:`formic_ros.drivers.actors_trainer`)."""
     require_distributable(cfg)
     started = time.monotonic()
     learner = Learner(cfg, run_dir, resume=resume, log=log)
@@ -147,7 +157,7 @@ def serve_trainer(cfg: TrainConfig, run_dir: Path, resume: bool = True, namespac
         if actors:
             from .actors_trainer import ActorsTrainerNode
 
-            node = ActorsTrainerNode(learner, actors, namespace, actor_deadline_s)
+            node = ActorsTrainerNode(learner, actors, namespace, actor_deadline_s, synchronous, max_lag)
         else:
             node = TrainerNode(learner, namespace, max_lag)
         executor.add_node(node)

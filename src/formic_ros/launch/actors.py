@@ -5,7 +5,8 @@ An actor is world ``k`` of the configuration's meta-agent worlds (the world node
 mode) and the learning host that acts in it, in namespace ``NS/actorK`` (one world per
 namespace on a machine); the host sends its rollouts to, and takes weights from, the trainer in
 ``NS`` (:mod:`formic_ros.drivers.actors_trainer`: synchronous updates, every actor's rollout of
-the current weights joined into ``formic train``'s one rollout).
+the current weights joined into ``formic train``'s one rollout; or, with the hosts on
+``--switch-weights newest``, asynchronous ones, one an actor's rollout).
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from dataclasses import asdict
 
 import formic_topics as topics
 
+from ..drivers.lag import AHEAD_CHUNKS
 from ..env import check_domain_id, ros_environment, warn_if_exposed
 from ..world.lock import check_world_free
 from ..world.options import WorldNodeOptions
@@ -44,11 +46,17 @@ def episodes_per_actor(opts: TrainRunOptions, actors: int) -> int:
 
 
 def trainer_spec(opts: TrainRunOptions, config_file: str, actors: int, deadline_s: float = ACTOR_DEADLINE_S) -> dict:
-    """The trainer of ``actors`` actors: it leaves after their episodes' updates."""
-    chunks = math.ceil(opts.config.episode_steps / opts.config.rollout_steps)
+    """The trainer of ``actors`` actors: it leaves after their episodes' updates (synchronous:
+    one an actors' chunk) or rollouts (asynchronous, hosts on ``switch="newest"``: one update a
+    rollout, a rollout too old dropped)."""
+    rollouts = episodes_per_actor(opts, actors) * math.ceil(opts.config.episode_steps / opts.config.rollout_steps)
+    # asynchronous: a host sends at most AHEAD_CHUNKS rollouts a weights version, so with K actors a
+    # rollout lags about AHEAD_CHUNKS x K versions at most; twice that before one is dropped
+    ends = ({"max_updates": rollouts} if opts.switch == "chunk"
+            else {"max_rollouts": rollouts * actors, "max_lag": 2 * AHEAD_CHUNKS * actors})
     return node_spec("trainer", train_config=config_file, namespace=opts.namespace, domain_id=opts.domain_id,
                      run_dir=opts.run_dir, resume=not opts.fresh, actors=actors, actor_deadline_s=deadline_s,
-                     max_updates=episodes_per_actor(opts, actors) * chunks)
+                     synchronous=opts.switch == "chunk", **ends)
 
 
 def actor_specs(opts: TrainRunOptions, config_file: str, actor: int, episodes: int, start: int) -> dict[str, dict]:
