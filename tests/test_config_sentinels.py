@@ -22,10 +22,11 @@ ROOT = Path(__file__).resolve().parents[1]
 TRAINING = ROOT / "models" / "training"
 
 # each shipped recipe's identities (every switch, at scales 1, 0.5 and 0.25), as computed before these
-# settings took None for off (paper-v5, written after, as first computed): a run directory resumes
+# settings took None for off (paper-v5 and paper-v6, written after, as first computed): a run directory resumes
 # only under the identity its claim holds
 SHIPPED_IDENTITIES = {"paper": "a68ab20c7aa1cf40", "paper-v2": "0fb550916b507096", "paper-v3": "bbc98de8088e6e9f",
-                      "paper-v4": "34efba19cbdca2f4", "paper-v5": "0b1ff86887a5c889", "smoke": "d94b97bcdeafe27e"}
+                      "paper-v4": "34efba19cbdca2f4", "paper-v5": "0b1ff86887a5c889",
+                      "paper-v6": "4dc79fdf5cf986c4", "smoke": "d94b97bcdeafe27e"}
 
 
 def digest(text: str) -> str:

@@ -525,6 +525,21 @@ def test_the_fifth_version_ends_the_reference_stage_on_the_clock():
     assert "1, 2, 3, 4, 5, 6, 7, 8" in v5.text
 
 
+def test_the_sixth_version_drops_the_bound_on_each_updates_policy_change():
+    """recipes/paper-v6.toml is paper-v5 with target_kl off from the reference stage on; nothing
+    else differs (its basics stage is paper-v5's)."""
+    v5, v6 = load_recipe("paper-v5"), load_recipe("paper-v6")
+    assert [(trained(a), a.cost) for a in v6.stages[:1]] == [(trained(b), b.cost) for b in v5.stages[:1]]
+    assert [(s.name, s.episodes, s.start, s.average, s.cost) for s in v6.stages] == \
+        [(s.name, s.episodes, s.start, s.average, s.cost) for s in v5.stages]
+    assert (v6.candidates, v6.validation) == (v5.candidates, v5.validation)
+    for i, stage in enumerate(v6.stages):
+        new, old = stage_config(v6, i, Path("run"), seed=1), stage_config(v5, i, Path("run"), seed=1)
+        differ = {k: (getattr(old, k), getattr(new, k)) for k in new.to_dict() if getattr(new, k) != getattr(old, k)}
+        assert differ == ({} if stage.name == "basics" else {"target_kl": (0.01, None)}), stage.name
+    assert "1, 2, 3, 4, 5, 6, 7, 8" in v6.text
+
+
 def test_a_stage_that_ends_on_its_clock_hands_on_and_is_complete_on_resume(tmp_path):
     """The smoke recipe's first stage ends at schedule episode 2 of its 10 (no hold: the clock is
     the episode count); the next stage starts from it, and a second run skips it as complete."""
