@@ -10,7 +10,9 @@ tests/test_actor_split.py)."""
 from __future__ import annotations
 
 import json
+import os
 import re
+import signal
 import time
 
 import pytest
@@ -179,3 +181,38 @@ def test_asynchronous_actors_update_from_every_rollout_as_it_comes(tmp_path):
     assert (saved["episode"], saved["updates"]) == (4, 8)
     lags = [int(lag) for lag in re.findall(r"update \d+: .*?lag (\d+)", output)]  # the trainer's log lines
     assert len(lags) == 8 and max(lags) <= 2 * AHEAD_CHUNKS * 2  # the trainer's bound for 2 actors
+
+
+def test_asynchronous_actors_go_on_with_a_restarted_trainer(tmp_path):
+    """`formic trainer --actors 2 --asynchronous` SIGKILLed after its third update under two
+    `formic actor --switch-weights newest` (4 episodes each), and started again on its run dir:
+    the hosts see its older weights version as a restart, count the rollouts it takes from zero
+    (so the AHEAD_CHUNKS bound does not hold them forever) and go on; the restarted trainer learns
+    from their rollouts and both actors finish with no action missed."""
+    config_file = tmp_path / "train_config.json"
+    config_file.write_text(json.dumps(CFG.to_dict()))
+    run_dir = tmp_path / "run"
+    spawner = Spawner(tmp_path, fresh_domain_id())
+    domain = ["--domain-id", str(spawner.domain_id), "--train-config", str(config_file)]
+    trainer_args = ("trainer", *domain, "--run-dir", str(run_dir), "--actors", "2", "--asynchronous", "--json")
+    try:
+        first = spawner.formic("trainer", *trainer_args, "--fresh", limit_s=60)
+        actors = [spawner.formic(f"actor{k}", "actor", *domain, "--actor", str(k), "--episodes", "4",
+                                 "--switch-weights", "newest", "--json", limit_s=90) for k in range(2)]
+        first.wait_for_text("update 3:", timeout=45)
+        first.kill()
+        saved = read_checkpoint(run_dir / "latest.pt")["progress"]["updates"]
+        again = spawner.formic("trainer_again", *trainer_args, limit_s=90)
+        assert [actor.wait() for actor in actors] == [0, 0], actors[0].output()[-3000:] + actors[1].output()[-3000:]
+        os.killpg(again.pid, signal.SIGTERM)
+        assert again.wait() == 0, again.output()[-3000:]
+        result, log = again.json_line(), again.output()
+        played = [actor.json_line()["episodes"] for actor in actors]
+        host_logs = [actor.output() for actor in actors]
+    finally:
+        spawner.reap_all()
+    assert "resumed from" in log and f"weights version {saved} published" in log
+    assert result["updates"] >= 1 and result["version"] == saved + result["updates"]
+    assert [len(episodes) for episodes in played] == [4, 4]
+    assert all(e["missed_actions"] == 0 for episodes in played for e in episodes)
+    assert all("the trainer restarted" in host_log for host_log in host_logs)
