@@ -169,19 +169,16 @@ class Learner:
     def save(self, name: str = "latest.pt") -> None:
         """The training state as ``name`` (with the guard's state); with a weight average also
         ``averaged.pt``, written after ``latest.pt`` (which carries the average too, so a crash
-        between the two loses nothing)."""
+        between the two loses nothing). ``best.pt`` leaves out the optimiser's state (two thirds
+        of the file): a rollback starts a fresh optimiser and a warm start takes the weights alone."""
         progress = {key: getattr(self, key) for key in PROGRESS}
         progress["schedule"] = self.schedule.state()
         if self.guard is not None:
             progress["guard"] = self.guard.state()
         averaged = {} if self.averaged is None else {"averaged_state_dict": self.averaged.state_dict()}
-        save_checkpoint(
-            self.run_dir / name, self.net,
-            optimizer=self.optimizer.state_dict(),
-            train_config=self.cfg.to_dict(),
-            progress=progress,
-            **averaged,
-        )
+        optimizer = {"optimizer": self.optimizer.state_dict()} if name == "latest.pt" else {}
+        save_checkpoint(self.run_dir / name, self.net, train_config=self.cfg.to_dict(), progress=progress,
+                        **optimizer, **averaged)
         if self.averaged is not None and name == "latest.pt":
             save_checkpoint(self.run_dir / "averaged.pt", self.averaged, progress=progress,
                             weight_average=self.cfg.weight_average)
