@@ -101,6 +101,22 @@ def test_a_killed_actor_is_left_out_and_a_restarted_one_rejoins(tmp_path):
     assert "8x8" in log[log.rindex("sent no rollout"):], "the restarted actor never joined an update again"
 
 
+def kill_trainer_at_update_3(tmp_path, spawner, trainer_flags: tuple[str, ...] = (), actor_flags: tuple[str, ...] = ()):
+    """`formic trainer --actors 2` (with ``trainer_flags``) and two `formic actor`s of 4 episodes
+    (with ``actor_flags``); the trainer SIGKILLed once it logs update 3. Returns the trainer's
+    arguments (to start it again), the actors and the killed trainer's checkpoint progress."""
+    config_file = tmp_path / "train_config.json"
+    config_file.write_text(json.dumps(CFG.to_dict()))
+    domain = ["--domain-id", str(spawner.domain_id), "--train-config", str(config_file)]
+    trainer_args = ("trainer", *domain, "--run-dir", str(tmp_path / "run"), "--actors", "2", *trainer_flags, "--json")
+    first = spawner.formic("trainer", *trainer_args, "--fresh", limit_s=60)
+    actors = [spawner.formic(f"actor{k}", "actor", *domain, "--actor", str(k), "--episodes", "4", *actor_flags,
+                             "--json", limit_s=90) for k in range(2)]
+    first.wait_for_text("update 3:", timeout=45)
+    first.kill()
+    return trainer_args, actors, read_checkpoint(tmp_path / "run" / "latest.pt")["progress"]
+
+
 def test_a_trainer_killed_and_restarted_from_its_checkpoint_goes_on_with_the_actors(tmp_path):
     """`formic trainer --actors 2` SIGKILLed after its first checkpoint (episode set 1: updates
     1-2) and its third update, under two running `formic actor`s (4 episodes each, 2 rollouts an
@@ -109,19 +125,10 @@ def test_a_trainer_killed_and_restarted_from_its_checkpoint_goes_on_with_the_act
     what a SIGKILL loses is what came after the checkpoint: update 3 and episode set 2, whose
     last rollouts (of version 3) went to the killed trainer. The restarted one learns sets 3 and
     4 (updates 3-6); its checkpoint holds 6 updates and 6 episodes."""
-    config_file = tmp_path / "train_config.json"
-    config_file.write_text(json.dumps(CFG.to_dict()))
     run_dir = tmp_path / "run"
     spawner = Spawner(tmp_path, fresh_domain_id())
-    domain = ["--domain-id", str(spawner.domain_id), "--train-config", str(config_file)]
-    trainer_args = ("trainer", *domain, "--run-dir", str(run_dir), "--actors", "2", "--json")
     try:
-        first = spawner.formic("trainer", *trainer_args, "--fresh", limit_s=60)
-        actors = [spawner.formic(f"actor{k}", "actor", *domain, "--actor", str(k), "--episodes", "4", "--json",
-                                 limit_s=90) for k in range(2)]
-        first.wait_for_text("update 3:", timeout=45)
-        first.kill()
-        checkpoint = read_checkpoint(run_dir / "latest.pt")["progress"]
+        trainer_args, actors, checkpoint = kill_trainer_at_update_3(tmp_path, spawner)
         for actor in actors:  # set 2 ended: its last rollouts went to the killed trainer
             deadline = time.monotonic() + 20
             while actor.output().count("episode over") < 2:
@@ -189,19 +196,11 @@ def test_asynchronous_actors_go_on_with_a_restarted_trainer(tmp_path):
     the hosts see its older weights version as a restart, count the rollouts it takes from zero
     (so the AHEAD_CHUNKS bound does not hold them forever) and go on; the restarted trainer learns
     from their rollouts and both actors finish with no action missed."""
-    config_file = tmp_path / "train_config.json"
-    config_file.write_text(json.dumps(CFG.to_dict()))
-    run_dir = tmp_path / "run"
     spawner = Spawner(tmp_path, fresh_domain_id())
-    domain = ["--domain-id", str(spawner.domain_id), "--train-config", str(config_file)]
-    trainer_args = ("trainer", *domain, "--run-dir", str(run_dir), "--actors", "2", "--asynchronous", "--json")
     try:
-        first = spawner.formic("trainer", *trainer_args, "--fresh", limit_s=60)
-        actors = [spawner.formic(f"actor{k}", "actor", *domain, "--actor", str(k), "--episodes", "4",
-                                 "--switch-weights", "newest", "--json", limit_s=90) for k in range(2)]
-        first.wait_for_text("update 3:", timeout=45)
-        first.kill()
-        saved = read_checkpoint(run_dir / "latest.pt")["progress"]["updates"]
+        trainer_args, actors, checkpoint = kill_trainer_at_update_3(
+            tmp_path, spawner, ("--asynchronous",), ("--switch-weights", "newest"))
+        saved = checkpoint["updates"]
         again = spawner.formic("trainer_again", *trainer_args, limit_s=90)
         assert [actor.wait() for actor in actors] == [0, 0], actors[0].output()[-3000:] + actors[1].output()[-3000:]
         os.killpg(again.pid, signal.SIGTERM)
