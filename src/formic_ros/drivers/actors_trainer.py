@@ -22,7 +22,7 @@ Asynchronous (``synchronous=False``, the actors' hosts on ``switch="newest"``): 
 rollout is one update as it comes, when it is at most ``max_lag`` versions old (older ones are
 dropped, counted), and each actor's episode end is one episode of the learning curve with its
 own food. The node publishes how many rollouts it has taken from each actor (``rollouts_taken``,
-JSON, latched): a host runs at most ``AHEAD_CHUNKS`` rollouts ahead of it, so when the learner is
+JSON with an id of this trainer's run, latched; at once and after each rollout): a host runs at most ``AHEAD_CHUNKS`` rollouts ahead of it, so when the learner is
 the slower side the actors wait rather than the queue and the lag growing. The actors never wait, so learning changes: an update follows one world's rollout, and
 the weights that acted may be a few versions old (docs/ros.md, "Actors").
 """
@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import json
 import time
+import uuid
 
 import numpy as np
 from formic_interfaces.msg import Rollout as RolloutMsg
@@ -64,8 +65,10 @@ class ActorsTrainerNode(TrainerNode):
         self.taken = np.zeros(actors, dtype=np.int64)  # asynchronous: rollouts taken from each actor
         super().__init__(learner, namespace, max_lag=0 if synchronous else max_lag)
         self.episodes_per_end = actors
-        if not synchronous:
+        if not synchronous:  # at once, with this trainer's id: a host that sees a new id recounts from it
+            self.trainer_id = uuid.uuid4().hex[:12]
             self.taken_pub = self.create_publisher(String, topics.ROLLOUTS_TAKEN, qos.LATCHED)
+            self.publish_taken()
 
     def actor_of(self, rollout: Rollout) -> int:
         return int(np.searchsorted(self.world_starts, rollout.agent_ids[0], side="right") - 1)
@@ -81,7 +84,7 @@ class ActorsTrainerNode(TrainerNode):
                 self.published_at = time.monotonic()
                 self.first_update_at = self.first_update_at or self.published_at
             self.taken[actor] += 1
-            self.taken_pub.publish(String(data=json.dumps({str(k): int(n) for k, n in enumerate(self.taken)})))
+            self.publish_taken()
             return
         if rollout.weights_version != self.learner.version or actor in self.pending:
             self.drop(f"actor {actor}'s rollout of weights version {rollout.weights_version} (now gathering "
@@ -106,6 +109,10 @@ class ActorsTrainerNode(TrainerNode):
                                    ("gather", gathered - self.gather_started), ("learn", published - gathered)):
                 self.phases_s[phase] += seconds
         self.published_at = published
+
+    def publish_taken(self) -> None:
+        self.taken_pub.publish(String(data=json.dumps(
+            {"trainer": self.trainer_id, "taken": {str(k): int(n) for k, n in enumerate(self.taken)}})))
 
     def close_episode(self, rollout: Rollout) -> str:
         if self.synchronous:

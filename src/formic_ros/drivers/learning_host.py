@@ -98,7 +98,8 @@ class LearningHost(Node):
         self.weights_sub = self.create_subscription(Weights, weights, self._on_weights, qos.LATCHED)
         self.actions_pub = self.create_publisher(ActionBatch, f"~/{topics.ACTIONS}", qos.STREAM_WRITER)
         self.claim = Claim(self, list(self.ids), self.actions_pub.topic_name, publishers=[self.actions_pub])
-        self.taken, self.sent_base = 0, 0  # switch "newest": rollouts the trainer took; sent before its restart
+        self.taken, self.sent_base = 0, 0  # switch "newest": rollouts the trainer took; sent to one before a restart
+        self.taken_from = ""  # the id of the trainer that counts them
         self.ahead_wait = False  # switch "newest": waiting for the trainer to take this host's rollouts
         if switch == "newest":
             self.create_subscription(String, topics.full_name(trainer_namespace or namespace, topics.ROLLOUTS_TAKEN),
@@ -135,16 +136,19 @@ class LearningHost(Node):
             self.log.warning(f"weights version {msg.version} after version {self.newest.version}: the trainer "
                              "restarted; acting with them from the next chunk")
             self.restarted = True
-            self.sent_base = self.rollouts_sent  # a restarted trainer counts the rollouts it takes from 0
         self.newest = msg
         self.pump()
 
     def _on_taken(self, msg: String) -> None:
         try:
-            self.taken = int(json.loads(msg.data).get(str(self.world_index), 0))
-        except (ValueError, AttributeError, TypeError):
+            data = json.loads(msg.data)
+            trainer, taken = str(data["trainer"]), int(data["taken"].get(str(self.world_index), 0))
+        except (ValueError, AttributeError, TypeError, KeyError):
             self.log.error(f"a malformed rollouts_taken message: {msg.data[:80]!r}", once=True)
             return
+        if trainer != self.taken_from:  # a (re)started trainer counts from 0: what went to another is lost
+            self.taken_from, self.sent_base = trainer, self.rollouts_sent - taken
+        self.taken = taken
         self.pump()
 
     def _on_batch(self, msg: ObservationBatch) -> None:
@@ -218,11 +222,9 @@ class LearningHost(Node):
     def _weights_ready(self) -> bool:
         if self.wait_version is None and self.ahead_wait:  # a chunk's start, switch "newest"
             if self._in_flight() >= AHEAD_CHUNKS:
-                if time.monotonic() > self.next_wait_report:
-                    self.log.warning(f"waited {time.monotonic() - self.waiting_since:.0f} s for the trainer to take "
-                                     f"this host's rollouts ({self._in_flight()} of {self.rollouts_sent} not taken)")
-                    self.next_wait_report = time.monotonic() + WEIGHTS_WAIT_LOG_S
-                return False
+                return self._still_waiting(lambda: f"waited {time.monotonic() - self.waiting_since:.0f} s for the "
+                                           f"trainer to take this host's rollouts ({self._in_flight()} of "
+                                           f"{self.rollouts_sent} not taken)")
             if self.newest.version != self.actor.weights_version:
                 self.actor.load_weights(self.newest)
             self.ahead_wait = self.restarted = False
@@ -232,13 +234,17 @@ class LearningHost(Node):
         # across a slow link, with an actor's world on loopback, happened to a first rollout (tests/test_lossy_link.py)
         if (self.newest is None or (self.newest.version <= self.wait_version and not self.restarted)
                 or not self.rollouts_pub.get_subscription_count()):
-            if time.monotonic() > self.next_wait_report:
-                self.log.warning(self.weights_wait_report())
-                self.next_wait_report = time.monotonic() + WEIGHTS_WAIT_LOG_S
-            return False
+            return self._still_waiting(self.weights_wait_report)
         self.actor.load_weights(self.newest)
         self.wait_version, self.restarted, self.episode_rollouts = None, False, 0
         return True
+
+    def _still_waiting(self, report) -> bool:
+        """False (not ready), saying ``report()`` every WEIGHTS_WAIT_LOG_S while the wait lasts."""
+        if time.monotonic() > self.next_wait_report:
+            self.log.warning(report())
+            self.next_wait_report = time.monotonic() + WEIGHTS_WAIT_LOG_S
+        return False
 
     def weights_wait_report(self) -> str:
         """Who this host waits for and what it knows: the graph's publishers of ``weights`` (the
