@@ -2,9 +2,9 @@
 """The ROS transports against one process and against the publish floor, side by side
 (docs/ros.md, "Speed").
 
-Each round runs, on one scenario and seed: ``formic sim`` (steps/s from its decision + world
-time a step), ``formic run --transport batched``, ``formic run --transport per-agent`` (steps/s
-after step 0, as their summaries say) and ``benchmarks/rclpy_publish.py`` (the cost of one
+Each round runs, on one scenario and seed: ``formic sim``, ``formic run --transport batched`` and
+``formic run --transport per-agent`` (steps/s after step 0 by the wall clock, as their summaries
+say: everything a step does, start-up and the first step's warm-up excluded) and ``benchmarks/rclpy_publish.py`` (the cost of one
 rclpy publish to another process, measured in the same run, of an ``AgentAction`` and of the
 world's serialized 3.9 kB ``AgentObservation``). The serial publish floor of the per-agent
 transport is ``formic sim``'s step plus two publishes an agent, one after the other: two small
@@ -39,18 +39,28 @@ def run_json(command: list[str]) -> dict:
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
-def one_round(world: list[str], agents: int, domain_id: int, out: Path) -> dict:
-    """One measurement of every path (steps/s, or µs a publish) with each run's food and digest."""
-    sim = run_json([*FORMIC, "sim", *world, "--json", "--out", str(out)])
-    row = {"sim": (1e3 / sim["step_ms_mean"], sim["food"], sim["state_digest"])}
-    for transport in ("batched", "per-agent"):
-        run = run_json([*FORMIC, "run", *world, "--transport", transport, "--domain-id", str(domain_id), "--json"])
-        row[transport] = (run["steps_per_s"], run["food"], run["state_digest"])
-    for message in ("action", "observation"):
-        publish = run_json([sys.executable, str(ROOT / "benchmarks" / "rclpy_publish.py"), "--topics", str(agents),
-                            "--rounds", "100", "--message", message, "--domain-id", str(domain_id), "--json"])
-        row[f"us_per_{message}"] = publish["us_per_publish"]
-        row[f"us_per_{message}_take"] = publish["us_per_take"]
+def one_round(world: list[str], agents: int, domain_id: int, out: Path, reverse: bool) -> dict:
+    """One measurement of every path (steps/s, or µs a publish) with each run's food and digest,
+    in ``reverse`` order every other round (a drifting machine then favours no path)."""
+    row: dict = {}
+
+    def sim() -> None:
+        done = run_json([*FORMIC, "sim", *world, "--json", "--out", str(out)])
+        row["sim"] = (done["steps_per_s"], done["food"], done["state_digest"])
+
+    def run(transport: str) -> None:
+        done = run_json([*FORMIC, "run", *world, "--transport", transport, "--domain-id", str(domain_id), "--json"])
+        row[transport] = (done["steps_per_s"], done["food"], done["state_digest"])
+
+    def publish(message: str) -> None:
+        done = run_json([sys.executable, str(ROOT / "benchmarks" / "rclpy_publish.py"), "--topics", str(agents),
+                         "--rounds", "100", "--message", message, "--domain-id", str(domain_id), "--json"])
+        row[f"us_per_{message}"], row[f"us_per_{message}_take"] = done["us_per_publish"], done["us_per_take"]
+
+    jobs = [sim, lambda: run("batched"), lambda: run("per-agent"), lambda: publish("action"),
+            lambda: publish("observation")]
+    for job in reversed(jobs) if reverse else jobs:
+        job()
     return row
 
 
@@ -61,14 +71,15 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=1024)
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--policy", default="formic")
-    parser.add_argument("--rounds", type=int, default=3, help="Medians over this many rounds.")
+    parser.add_argument("--rounds", type=int, default=4,
+                        help="Medians over this many rounds (every other one in reverse order).")
     parser.add_argument("--domain-id", type=int, default=78, help="A ROS domain no other run uses.")
     parser.add_argument("--out", type=Path, default=Path("out/transport_floor"), help="formic sim's picture.")
     args = parser.parse_args()
 
     world = ["--agents", str(args.agents), "--size", str(args.size), "--steps", str(args.steps),
              "--seed", str(args.seed), "--policy", args.policy]
-    rounds = [one_round(world, args.agents, args.domain_id, args.out) for _ in range(args.rounds)]
+    rounds = [one_round(world, args.agents, args.domain_id, args.out, reverse=i % 2 == 1) for i in range(args.rounds)]
     for r in rounds:  # serial: sim's step, then 2N publishes
         r["floor"] = (1.0 / (1.0 / r["sim"][0] + 2 * args.agents * r["us_per_action"] * 1e-6),)
         r["message floor"] = (1.0 / (1.0 / r["sim"][0] + args.agents * (r["us_per_action"] + r["us_per_observation"])

@@ -28,6 +28,14 @@ class EpisodeStats:
         self.step_seconds = np.zeros(horizon)  # wall time of the world step
         self.food = 0.0
         self.world: World | None = None
+        self.stepping = (0.0, 0.0)  # wall clock (perf_counter s) at the end of step 0 and of the last step
+
+    @property
+    def steps_per_s(self) -> float:
+        """Steps after step 0 per wall-clock second, everything a step does included (as the
+        ROS world node measures it: start-up and the first step's warm-up excluded)."""
+        start, end = self.stepping
+        return (len(self.food_curve) - 1) / (end - start) if end > start else 0.0
 
     def record(self, t: int, world: World, loads_before: np.ndarray, queued_before: np.ndarray,
                decision_s: float, step_s: float) -> None:
@@ -66,6 +74,7 @@ class EpisodeStats:
             },
             "step_ms_mean": self.step_ms_mean,
             "world_step_ms_mean": float(self.step_seconds.mean() * 1e3),
+            "steps_per_s": self.steps_per_s,
             "state_digest": self.world.state_digest(),
         }
 
@@ -93,6 +102,7 @@ def run_episode(
     stats = EpisodeStats(cfg.n_agents, horizon)
     stats.world = world
     wipe_starts = set(scenario.wipeout_starts)
+    stepping_from = 0.0
     for t in range(horizon):
         if t in wipe_starts:
             team.wipe()
@@ -105,4 +115,7 @@ def run_episode(
         stats.record(t, world, before, queued, t1 - t0, time.perf_counter() - t1)
         if on_step is not None:
             on_step(world)
+        if t == 0:
+            stepping_from = time.perf_counter()
+    stats.stepping = (stepping_from, time.perf_counter())
     return stats
