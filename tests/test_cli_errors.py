@@ -323,3 +323,15 @@ def test_scenarios_starts_prints_each_robots_start_cell_and_its_centre():
     assert [(s["row"], s["col"]) for s in starts] == [(int(a.row), int(a.col)) for a in scenario.agents]
     assert_one_line_error(formic("scenarios", "starts", "--agents", "8", "--robots", "9"),
                           "--robots [9]: not agents of this team of 8")
+
+
+def test_a_timeline_goes_into_a_fresh_folder_and_its_report_names_what_is_missing(tmp_path, monkeypatch):
+    """--timeline would mix two runs' marks in one folder; the report says what a folder lacks."""
+    monkeypatch.delenv("FORMIC_TIMELINE", raising=False)
+    (tmp_path / "world-1.csv").write_text("event,step,ns\n")
+    usage = formic("run", *TINY_WORLD, "--timeline", str(tmp_path))
+    assert usage.exit_code == 2 and usage.stderr.splitlines()[-1] == (
+        f"Error: Invalid value for --timeline: {tmp_path} already holds a run's timeline: give each run a fresh folder")
+    assert_one_line_error(formic("timeline", str(tmp_path)),
+                          f"{tmp_path} holds 1 world and 0 host timelines: it needs one world's and its hosts' "
+                          "(run `formic run --timeline DIR` with a fresh DIR)")

@@ -151,9 +151,10 @@ def test_action_inbox_validates_every_entry():
     ("batched", "formic", str(ROOT / "models" / "formic_cpu.pt")),  # the odometry model: nest inputs
 ])
 def test_run_across_processes_equals_sim(spawner, transport, policy, model):
+    timeline = spawner.log_dir / "timeline"  # noting where each step's time goes changes nothing
     run = spawner.formic("run", "run", *SMALL, "--steps", "50", "--policy", policy, "--transport", transport,
                          "--hosts", "2", "--domain-id", str(spawner.domain_id), "--deadline-ms", "5000",
-                         "--json", *(("--model", model) if model else ()), limit_s=120)
+                         "--json", "--timeline", str(timeline), *(("--model", model) if model else ()), limit_s=120)
     assert run.wait() == 0, run.output()[-3000:]
     summary = run.json_line()
     food, digest = sim_result(50, policy, model)
@@ -161,6 +162,10 @@ def test_run_across_processes_equals_sim(spawner, transport, policy, model):
     assert (summary["food"], summary["state_digest"]) == (food, digest)
     assert summary["missed_actions"] == 0 and summary["rejected_actions"] == {}
     assert summary["hosts"] == 2 and set(summary["exit_codes"].values()) == {0}
+    assert sorted(p.name.split("-")[0] for p in timeline.iterdir()) == ["host", "host", "world"]
+    report = summary["timeline"]
+    assert (report["steps"], report["hosts"]) == (48, 2)  # steps 1-48 (0 waits for the hosts; 49 has no next)
+    assert 0 < sum(report["segments_ms"].values()) < 3 * report["cycle_ms"]
 
 
 def test_planner_node_equals_sim(spawner):

@@ -5,7 +5,11 @@ inside the commands)."""
 
 from __future__ import annotations
 
+import os
 import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
 
 import click
 
@@ -88,12 +92,15 @@ def _parse_external(text: str | None) -> tuple[int, ...]:
               help="One node and topic pair per agent, or one batched topic pair per host.")
 @click.option("--external", help="Agents driven by your own node on their per-agent topics, e.g. 5 or 0-3.")
 @click.option("--record", type=click.Path(file_okay=False), help="Record every topic to this rosbag2 (MCAP) directory.")
+@click.option("--timeline", type=click.Path(file_okay=False),
+              help="Note when each step's messages leave and arrive in every process, into this (fresh) folder, "
+                   "and report where a step's time went (formic timeline).")
 @lockstep_options()
 @launch_options
 @view_options()
 @run_robot_options
 @json_option()
-def run(scenario_file, external, live_view, view_port, view_wait, as_json, **fields) -> None:
+def run(scenario_file, external, live_view, view_port, view_wait, as_json, timeline, **fields) -> None:
     """The main job: world, agent hosts (or the planner) and recorder as separate ROS processes."""
     from formic_ros.launch.launcher import RunOptions, launch
 
@@ -107,14 +114,63 @@ def run(scenario_file, external, live_view, view_port, view_wait, as_json, **fie
 
         click.echo(announcement(address(DEFAULT_HOST, view_port)), err=True)
     with click_errors(RuntimeError, ValueError, FileNotFoundError,
-                      interrupted="interrupted: every process stopped"):
+                      interrupted="interrupted: every process stopped"), _timeline_for_children(timeline):
         summary = launch(options)
+        if timeline is not None:
+            from formic_ros.timeline import segments
+
+            summary["timeline"] = segments(timeline)
     if as_json:
         emit_json(summary)
         return
     _print_ros_summary(summary)
     click.echo(f"{summary['hosts']} host process(es), {summary['transport']} transport"
                + (f"; recording in {summary['recording']}" if "recording" in summary else ""))
+    if timeline is not None:
+        _print_timeline(summary["timeline"])
+
+
+@contextmanager
+def _timeline_for_children(folder: str | None) -> Iterator[None]:
+    """``FORMIC_TIMELINE`` in the environment the run's processes inherit, while they run, into
+    a folder without another run's timeline (no folder: nothing changes)."""
+    from formic_ros.timeline import ENV
+
+    if folder is None:
+        yield
+        return
+    if any(Path(folder).glob("world-*.csv")) or any(Path(folder).glob("host-*.csv")):
+        raise click.BadParameter(f"{folder} already holds a run's timeline: give each run a fresh folder",
+                                 param_hint="--timeline")
+    previous = os.environ.get(ENV)
+    os.environ[ENV] = str(Path(folder).resolve())
+    try:
+        yield
+    finally:
+        if previous is None:
+            del os.environ[ENV]
+        else:
+            os.environ[ENV] = previous
+
+
+def _print_timeline(report: dict) -> None:
+    parts = report["segments_ms"]
+    click.echo(f"where a step's time went (medians over {report['steps']} steps, {report['hosts']} host(s); "
+               f"a step took {report['cycle_ms']:.2f} ms, the parts add up to {sum(parts.values()):.2f} ms):")
+    for label, ms in parts.items():
+        click.echo(f"  {label:<64}{ms:8.3f} ms")
+
+
+@click.command("timeline")
+@click.argument("folder", type=click.Path(exists=True, file_okay=False))
+@json_option()
+def timeline_report(folder, as_json) -> None:
+    """Where a step's time went in a run with FORMIC_TIMELINE=FOLDER (or formic run --timeline)."""
+    from formic_ros.timeline import segments
+
+    with click_errors(ValueError):
+        report = segments(folder)
+    emit(as_json, report, _print_timeline)
 
 
 @click.command()
@@ -310,7 +366,7 @@ def bench_ros(teams, transports, steps, size, repeats, domain_id, as_json) -> No
 
 
 def register(cli: click.Group) -> None:
-    for command in (run, world, agents, planner, train_ros, robot, robots_sim):
+    for command in (run, world, agents, planner, train_ros, robot, robots_sim, timeline_report):
         cli.add_command(command)
     bench = cli.commands.get("bench")
     if isinstance(bench, click.Group):

@@ -38,6 +38,7 @@ from formic_world import Scenario
 
 from .. import convert, qos
 from ..parameters import declare_settings
+from ..timeline import Timeline
 from .claim import Claim
 from .protocol import DriverProtocol, Turn
 from .world_watch import WorldWatch, read_scenario
@@ -103,8 +104,13 @@ class AgentHost(Node):
         self.expected = 0  # this host's agents that are in the team
         self.episodes = 0
         self.answered_at = -np.inf  # when the last answer went out (monotonic s)
+        self.timeline = Timeline("host")  # FORMIC_TIMELINE: where each step's time goes
         self._reset_steps()
         self.log.info(f"up: agents {format_ids(self.ids.tolist())} ({transport}), waiting for a world in {namespace}")
+
+    def destroy_node(self) -> None:
+        self.timeline.save()
+        super().destroy_node()
 
     @property
     def finished(self) -> bool:
@@ -196,6 +202,7 @@ class AgentHost(Node):
             self._answer_gathered()
 
     def _answer_gathered(self) -> None:
+        self.timeline.mark("all_in", self.collecting)
         self._answer(convert.decode_agent_observation_bytes([self.gathered[a] for a in sorted(self.gathered)]))
 
     def _answer_late_step(self) -> None:
@@ -209,6 +216,8 @@ class AgentHost(Node):
         turn = self._turn(msg.step, msg.done)
         if turn not in (Turn.START, Turn.STEP, Turn.RESEND):
             return
+        if turn is not Turn.RESEND:
+            self.timeline.mark("all_in", msg.step)
         rows = convert.rows_of(msg, self.ids)
         rows = rows[rows >= 0]
         if not len(rows):
@@ -226,7 +235,9 @@ class AgentHost(Node):
         if step in self.scenario.wipeout_starts and self.wiped_at != step:
             self.team.wipe()
             self.wiped_at = step
+        self.timeline.mark("decide", step)
         actions = self.team.act(batch)
+        self.timeline.mark("decided", step)
         if step == self.protocol.answered_step:  # a late agent of a step answered in part
             self.answer_ids = np.concatenate([self.answer_ids, batch.agent_ids])
             self.answer = np.concatenate([self.answer, actions])
@@ -240,6 +251,7 @@ class AgentHost(Node):
             for a, action in zip(batch.agent_ids.tolist(), actions.tolist()):  # serialized here: no message objects
                 self.action_pubs[a].publish(convert.agent_action_bytes(step, a, action))
         self.answered_at = time.monotonic()
+        self.timeline.mark("answered", step)
 
 
 def serve_agents(agent_ids: list[int], spec: str, once: bool = False, domain_id: int | None = None, **settings) -> int:

@@ -33,6 +33,7 @@ from formic_world.metric_frame import MetricFrame
 from .. import convert, qos
 from ..graph import RecorderReports, recorders_present, settle_discovery, wait_for_recorders
 from ..parameters import declare_settings, settings_of
+from ..timeline import Timeline
 from ..wire import encoding_code
 from .lockstep import Lockstep, RateLimitedLog
 from .options import WorldNodeOptions
@@ -60,6 +61,7 @@ class WorldNode(Node):
         self.core_lock = threading.Lock()  # held while the core changes: other threads then read a whole step
         encoding_code(options.observation_encoding)  # an unknown encoding fails here, not at step 0
         self.outbox = WorldOutbox(self, n, options, lambda: self.metric_frame)
+        self.timeline = Timeline("world")  # FORMIC_TIMELINE: where each step's time goes
         sub = functools.partial(convert.checked_subscription, self, on_malformed=self._on_malformed)
         self.actions_sub = sub(ActionBatch, topics.ACTIONS, qos.STREAM, self._on_action_batch)
         action_readers = [self.create_subscription(AgentAction, topics.agent_topic(a, topics.AGENT_ACTION),
@@ -83,6 +85,10 @@ class WorldNode(Node):
         self.load(scenario)
         if options.robots:
             self.robots = robot_link(self, scenario)
+
+    def destroy_node(self) -> None:
+        self.timeline.save()
+        super().destroy_node()
 
     @property
     def metric_frame(self) -> MetricFrame:
@@ -208,11 +214,14 @@ class WorldNode(Node):
         t = world.t
         self._count_pause()
         self.inbox.open(t)
+        self.timeline.mark("observe", t)
         self.outbox.observations(self.world, self.result)
+        self.timeline.mark("sent", t)
         self.settle()
         t0 = time.monotonic()
         resend = functools.partial(self.outbox.observations, world, self.result)
         self.tick = self.lockstep.await_actions(executor, resend, self.started, self.tick)
+        self.timeline.mark("heard", t)
         self.lockstep.count_misses(t)
         actions = self.inbox.close()
         t1 = time.monotonic()
@@ -223,6 +232,7 @@ class WorldNode(Node):
             else:  # committed once the robots are in their cells; failed moves become NO_ACTION
                 report = self.robots.step(executor, world, actions)
                 self.result, actions = report.result, report.applied
+        self.timeline.mark("stepped", t)
         self._finish = functools.partial(self._finish_step, self.book, t, actions, loads_before, queued_before,
                                          t1 - t0, time.monotonic() - t1, final=world.done)
         if t == 0:  # speed is measured from here: start-up and discovery excluded
