@@ -15,13 +15,14 @@ import pytest
 import torch
 from click.testing import CliRunner
 
-from formic_agent.checkpoint import load_network, read_checkpoint
+from formic_agent.checkpoint import CheckpointError, load_network, read_checkpoint
 from formic_cli.main import cli
 from formic_eval.matrix import file_digest, layout_seed
 from formic_eval.runner import folder_episodes
 from formic_trainer.actor import filter_probability
 from formic_trainer.config import load_train_config
 from formic_trainer.learner import RESUMABLE
+from formic_trainer.train import Trainer
 from formic_trainer.recipes.definition import RecipeError, stage_config, trained, weights_file
 from formic_trainer.recipes.files import load_recipe
 from formic_trainer.recipes.run import cpu_seconds_left, run_recipe
@@ -121,6 +122,11 @@ def test_a_recipe_runs_every_stage_then_chooses_on_validation_and_resumes_after_
     last = load_train_config(whole / "last" / "config.json")
     assert last.init_weights == str(whole / "middle" / "mean.pt") and last.seed == 1003 and last.valid_coef == 0
     assert load_train_config(whole / "middle" / "config.json").init_weights == str(whole / "first" / "latest.pt")
+    # a finished stage's checkpoint keeps no optimiser state (no later stage resumes it) and cannot be resumed
+    for stage in ("first", "middle", "last"):
+        assert "optimizer" not in read_checkpoint(whole / stage / "latest.pt")
+    with pytest.raises(CheckpointError, match="holds no optimiser state .* start a new --run-dir from its weights"):
+        Trainer(load_train_config(whole / "first" / "config.json"), whole / "first")
     # the mean names the snapshots of episodes 2 and 4
     sources = read_checkpoint(whole / "middle" / "mean.pt")["averaged_from"]
     assert [s.split()[0] for s in sources] == ["episode00002.pt", "episode00004.pt"]

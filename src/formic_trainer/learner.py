@@ -16,6 +16,7 @@ import numpy as np
 import torch
 
 from formic_agent.checkpoint import CheckpointError, initialise_from, load_network, read_checkpoint, save_checkpoint
+from formic_world.files import atomic_open
 
 from .algorithm import check_update_precision, make_optimizer, set_learning_rate, training_network, update
 from .config import TrainConfig, off_as_none, plain
@@ -93,6 +94,9 @@ class Learner:
                 f"{path} was trained with different settings ({', '.join(changed)}); "
                 "use the same settings, a new --run-dir, or --fresh"
             )
+        if "optimizer" not in payload:
+            raise CheckpointError(f"{path} holds no optimiser state (a finished recipe stage's): its training is over; "
+                                  "start a new --run-dir from its weights (init_weights) instead")
         self.net.load_state_dict(payload["state_dict"])
         self.optimizer.load_state_dict(payload["optimizer"])
         progress = {"cpu_seconds": payload["progress"]["seconds"]} | payload["progress"]
@@ -186,3 +190,13 @@ class Learner:
     def close(self) -> None:
         self.save()
         self.writer.close()
+
+
+def drop_optimizer_state(path: Path) -> None:
+    """Rewrite a training checkpoint whose training is over without its optimiser's state (two
+    thirds of the file); one without it is left as it is."""
+    payload = read_checkpoint(path)
+    if "optimizer" in payload:
+        del payload["optimizer"]
+        with atomic_open(path, "wb") as handle:
+            torch.save(payload, handle)

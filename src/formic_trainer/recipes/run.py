@@ -1,6 +1,7 @@
 """Running a recipe: each stage trained (or skipped, or resumed) in its folder, the snapshots
 its checkpoint mean needs, the mean, each finished stage's ``progress.json`` (its counters, which
-the model card reads once the checkpoints are gone), and the progress line's budget and time
+the model card reads once the checkpoints are gone) and its ``latest.pt`` without the optimiser's
+state (a third of the size: no later stage resumes it), and the progress line's budget and time
 left; the validation and the choice that end a run are :mod:`.validation`'s."""
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from formic_world.files import held_directory
 
 from ..averaging import average_sources, write_average
 from ..config import make_config
+from ..learner import drop_optimizer_state
 from ..train import Trainer, export_model
 from .definition import Recipe, RecipeError, Stage, stage_config
 from .files import held_identity, shown_recipe, write_json
@@ -136,6 +138,7 @@ class RecipeRun:
         self.snapshot(stage, episode)
         # the stage's counters where they outlive its checkpoint (a finished run keeps no latest.pt)
         write_json(where / "progress.json", read_checkpoint(where / "latest.pt")["progress"])
+        drop_optimizer_state(where / "latest.pt")  # the next stage starts a fresh optimiser
         if stage.average is not None:
             self.average(stage)
         wanted = {s.start for s in self.recipe.stages} | set(self.recipe.candidates)
