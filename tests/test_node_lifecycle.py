@@ -224,3 +224,69 @@ def test_ctrl_c_during_a_child_wait_leaves_the_child_reapable():
     os.killpg(child.process.pid, signal.SIGKILL)
     assert child.poll(block=True) == -signal.SIGKILL
     assert not child.alive and child.process.poll() == -signal.SIGKILL
+
+
+LAST_S = "2.0"  # the writer's bound (deliver_last_messages' timeout_s)
+WRITER = """
+import sys, time
+from std_msgs.msg import String
+from formic_ros.env import deliver_last_messages, ros_session
+with ros_session() as executor:
+    import rclpy
+    node = rclpy.create_node("last_words_writer")
+    executor.add_node(node)
+    publisher = node.create_publisher(String, "last_words", 10)
+    while publisher.get_subscription_count() == 0:
+        executor.spin_once(timeout_sec=0.05)
+    print("matched", flush=True)
+    sys.stdin.readline()  # the test stops (or not) the reader, then says go
+    publisher.publish(String(data="bye"))
+    started = time.monotonic()
+    deliver_last_messages([node], timeout_s=float(sys.argv[1]))
+    print(f"waited {time.monotonic() - started:.3f}", flush=True)
+"""
+READER = """
+import rclpy
+from std_msgs.msg import String
+from formic_ros.env import ros_session
+with ros_session() as executor:
+    node = rclpy.create_node("last_words_reader")
+    node.create_subscription(String, "last_words", lambda m: print("got", m.data, flush=True), 10)
+    executor.add_node(node)
+    while True:
+        executor.spin_once(timeout_sec=0.1)
+"""
+
+
+@pytest.mark.parametrize("stopped_s", [1.2, None])
+def test_a_leaving_process_waits_for_its_last_messages_to_be_acknowledged_but_not_for_long(spawner, stopped_s):
+    """A writer gone before a reader took its last sample cannot repair it (a recording once lost
+    a robot's last status so): leaving, a process waits until its readers acknowledged, at most
+    ``timeout_s`` (2 s here). A reader stopped for 1.2 s still gets the message (a writer that
+    left at once lost it); one that stays stopped holds the writer up for the bound only."""
+    import subprocess
+    import sys
+
+    reader = spawner.python("reader", "-c", READER, limit_s=60)
+    writer = subprocess.Popen(["timeout", "-s", "KILL", "60", sys.executable, "-c", WRITER, LAST_S], env=spawner.env,
+                              stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)  # bounded: reads end
+    try:
+        assert writer.stdout.readline().strip() == "matched"
+        reader.popen.send_signal(signal.SIGSTOP)
+        writer.stdin.write("go\n")
+        writer.stdin.flush()
+        if stopped_s is not None:
+            time.sleep(stopped_s)
+            reader.popen.send_signal(signal.SIGCONT)
+        waited = float(writer.stdout.readline().split()[1])
+        assert writer.wait(timeout=20) == 0
+        reader.popen.send_signal(signal.SIGCONT)
+        if stopped_s is not None:
+            reader.wait_for_text("got bye", 10)
+            assert stopped_s - 0.05 <= waited < 1.95  # until the reader acknowledged
+        else:
+            assert 1.95 <= waited < 2.5  # the whole bound, no more
+    finally:
+        if writer.poll() is None:
+            writer.kill()
+        writer.wait()
