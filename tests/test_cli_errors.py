@@ -332,6 +332,9 @@ def test_a_timeline_goes_into_a_fresh_folder_and_its_report_names_what_is_missin
     usage = formic("run", *TINY_WORLD, "--timeline", str(tmp_path))
     assert usage.exit_code == 2 and usage.stderr.splitlines()[-1] == (
         f"Error: Invalid value for --timeline: {tmp_path} already holds a run's timeline: give each run a fresh folder")
+    planner = formic("run", *TINY_WORLD, "--policy", "planner", "--timeline", str(tmp_path / "fresh"))
+    assert planner.exit_code == 2 and planner.stderr.splitlines()[-1] == (
+        "Error: --timeline times agent hosts; the centralized planner runs without one")
     assert_one_line_error(formic("timeline", str(tmp_path)),
                           f"{tmp_path} holds 1 world and 0 host timelines: it needs one world's and its hosts' "
                           "(run `formic run --timeline DIR` with a fresh DIR)")

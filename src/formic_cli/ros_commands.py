@@ -104,6 +104,8 @@ def run(scenario_file, external, live_view, view_port, view_wait, as_json, timel
     """The main job: world, agent hosts (or the planner) and recorder as separate ROS processes."""
     from formic_ros.launch.launcher import RunOptions, launch
 
+    if timeline is not None and fields["policy"].strip() == "planner":
+        raise click.UsageError("--timeline times agent hosts; the centralized planner runs without one")
     robots = robot_run_options(fields)  # --robots and the rest (docs/robots.md)
     scenario = scenario_from(scenario_file, fields)  # takes the world options out: RunOptions' fields remain
     options = RunOptions(scenario=scenario, external=_parse_external(external), robots=robots, **fields,

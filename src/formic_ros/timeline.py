@@ -6,7 +6,8 @@ and when its actions are chosen, leave and arrive (``time.monotonic_ns``: one cl
 process on the machine), and write the marks to ``DIR/world-PID.csv`` and ``DIR/host-PID.csv``
 when their node closes. :func:`segments` lines the files up by step and splits each step's
 round trip into consecutive segments that add up to the step (``formic timeline DIR``). Off
-(the default), marking is a call to a function that does nothing.
+(the default), marking is a call to a function that does nothing. Marks are keyed by step: of a
+world that played several episodes (reset through its control services), the last one counts.
 """
 
 from __future__ import annotations
