@@ -4,16 +4,17 @@
 
 Each round runs, on one scenario and seed: ``formic sim``, ``formic run --transport batched`` and
 ``formic run --transport per-agent`` (steps/s after step 0 by the wall clock, as their summaries
-say: everything a step does, start-up and the first step's warm-up excluded) and ``benchmarks/rclpy_publish.py`` (the cost of one
-rclpy publish to another process, measured in the same run, of an ``AgentAction`` and of the
-world's serialized 3.9 kB ``AgentObservation``). The serial publish floor of the per-agent
-transport is ``formic sim``'s step plus two publishes an agent, one after the other: two small
-ones (``floor``, as the target was set) and, beside it, the messages the transport sends (one
+say: everything a step does, start-up and the first step's warm-up excluded) and
+``benchmarks/rclpy_publish.py`` (the cost of one rclpy publish to another process, measured in
+the same run, of an ``AgentAction`` and of the world's serialized 3.9 kB ``AgentObservation``),
+every other round in reverse order. The serial publish floor of the per-agent transport is
+``formic sim``'s step plus two publishes an agent, one after the other: two small ones
+(``floor``, as the target was set) and, beside it, the messages the transport sends (one
 observation and one action an agent: ``message floor``), and those messages with the reader's CPU
-time to take each (``with takes``: a bound from the other side, as if nothing overlapped). Printed: medians over the rounds, the ratios (each the median
-of the rounds' own ratios: a busy machine's speed drifts from round to round, and the paths of
-one round run minutes apart at most), and whether food and state digest equal ``formic sim``'s
-in every run:
+time to take each (``with takes``: a bound from the other side, as if nothing overlapped).
+Printed: medians over the rounds, the ratios (each the median of the rounds' own ratios: a busy
+machine's speed drifts from round to round, and the paths of one round run minutes apart at
+most), and whether food and state digest equal ``formic sim``'s in every run:
 
     .venv/bin/python benchmarks/transport_floor.py --agents 16 --size 32 --steps 64 --rounds 1
 """
