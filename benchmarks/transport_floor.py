@@ -14,7 +14,8 @@ observation and one action an agent: ``message floor``), and those messages with
 time to take each (``with takes``: a bound from the other side, as if nothing overlapped).
 Printed: medians over the rounds, the ratios (each the median of the rounds' own ratios: a busy
 machine's speed drifts from round to round, and the paths of one round run minutes apart at
-most), and whether food and state digest equal ``formic sim``'s in every run:
+most), where a step's time went in each transport (``formic run --timeline``'s segments), and
+whether food and state digest equal ``formic sim``'s in every run:
 
     .venv/bin/python benchmarks/transport_floor.py --agents 16 --size 32 --steps 64 --rounds 1
 """
@@ -26,6 +27,7 @@ import json
 import statistics
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -50,8 +52,11 @@ def one_round(world: list[str], agents: int, domain_id: int, out: Path, reverse:
         row["sim"] = (done["steps_per_s"], done["food"], done["state_digest"])
 
     def run(transport: str) -> None:
-        done = run_json([*FORMIC, "run", *world, "--transport", transport, "--domain-id", str(domain_id), "--json"])
+        with tempfile.TemporaryDirectory() as timeline:  # where the step's time goes (formic run --timeline)
+            done = run_json([*FORMIC, "run", *world, "--transport", transport, "--domain-id", str(domain_id),
+                             "--timeline", f"{timeline}/marks", "--json"])
         row[transport] = (done["steps_per_s"], done["food"], done["state_digest"])
+        row[f"{transport} segments"] = done["timeline"]["segments_ms"]
 
     def publish(message: str) -> None:
         done = run_json([sys.executable, str(ROOT / "benchmarks" / "rclpy_publish.py"), "--topics", str(agents),
@@ -110,6 +115,11 @@ def main() -> None:
         each = " ".join(f"{r[key][0]:.0f}" for r in rounds)
         ratios = f"{ratio('sim', key):>8.2f}x{ratio('floor', key):>9.2f}x{ratio('message floor', key):>13.2f}x"
         print(f"{label:<22}{median[key]:>9.0f}{ratios}   {each}")
+    print("where a step's time went (ms, medians over the rounds of each segment's median; formic run --timeline):")
+    print(f"{'segment':<66}{'batched':>9}{'per-agent':>11}")
+    for segment in rounds[0]["batched segments"]:
+        cells = (statistics.median(r[f"{t} segments"][segment] for r in rounds) for t in ("batched", "per-agent"))
+        print(f"{segment:<66}" + "".join(f"{ms:>{w}.3f}" for ms, w in zip(cells, (9, 11))))
     print(f"food {expected[0]}, digest {expected[1]}: "
           + ("equal in every run" if same else "DIFFERENT: " + json.dumps(rounds)))
     if not same:
