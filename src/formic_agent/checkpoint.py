@@ -41,9 +41,14 @@ def _payload(net: ForMICNet, **extra: Any) -> dict[str, Any]:
 
 
 def save_checkpoint(path: str | os.PathLike, net: ForMICNet, **extra: Any) -> None:
+    """``net`` and ``extra`` as a checkpoint at ``path`` (:func:`write_checkpoint`)."""
+    write_checkpoint(path, _payload(net, **extra))
+
+
+def write_checkpoint(path: str | os.PathLike, payload: dict[str, Any]) -> None:
     """Write to a temporary file and rename: a crash never leaves a half-written checkpoint."""
     with atomic_open(path, "wb") as handle:
-        torch.save(_payload(net, **extra), handle)
+        torch.save(payload, handle)
 
 
 def read_checkpoint(source: str | os.PathLike | bytes) -> dict[str, Any]:

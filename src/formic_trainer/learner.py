@@ -15,8 +15,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from formic_agent.checkpoint import CheckpointError, initialise_from, load_network, read_checkpoint, save_checkpoint
-from formic_world.files import atomic_open
+from formic_agent.checkpoint import (CheckpointError, initialise_from, load_network, read_checkpoint, save_checkpoint,
+                                     write_checkpoint)
 
 from .algorithm import check_update_precision, make_optimizer, set_learning_rate, training_network, update
 from .config import TrainConfig, off_as_none, plain
@@ -198,5 +198,4 @@ def drop_optimizer_state(path: Path) -> None:
     payload = read_checkpoint(path)
     if "optimizer" in payload:
         del payload["optimizer"]
-        with atomic_open(path, "wb") as handle:
-            torch.save(payload, handle)
+        write_checkpoint(path, payload)

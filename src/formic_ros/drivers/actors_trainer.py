@@ -22,10 +22,11 @@ Asynchronous (``synchronous=False``, the actors' hosts on ``switch="newest"``): 
 rollout is one update as it comes, when it is at most ``max_lag`` versions old (older ones are
 dropped, counted), and each actor's episode end is one episode of the learning curve with its
 own food. The node publishes how many rollouts it has taken from each actor (``rollouts_taken``,
-JSON with an id of this trainer's run, latched; at once and after each rollout): a host runs at most ``AHEAD_CHUNKS`` rollouts ahead of it, so when the learner is
-the slower side the actors wait rather than the queue and the lag growing. The actors never wait, so learning changes: an update follows one world's rollout, and
-the weights that acted may be a few versions old (docs/ros.md, "Actors").
-"""
+JSON with an id of this trainer's run, latched; at once and after each rollout): a host runs at
+most ``AHEAD_CHUNKS`` rollouts ahead of it, so when the learner is the slower side the actors
+wait rather than the queue and the lag growing. The actors never wait for an update, so learning
+changes: an update follows one world's rollout, and the weights that acted may be a few versions
+old (docs/ros.md, "Actors")."""
 
 from __future__ import annotations
 
