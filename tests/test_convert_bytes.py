@@ -59,6 +59,18 @@ def test_actions_from_other_writers_decode_and_truncated_ones_do_not():
     assert convert.decode_agent_action(convert.agent_action_bytes(9, 3, 2)[:9]) is None
 
 
+def test_a_sweeps_actions_decode_as_one_array_like_one_by_one():
+    datas = [convert.agent_action_bytes(9, 3, 2), convert.agent_action_bytes(9, 4, 0)[:13],  # no padding
+             serialization.serialize_message(AgentAction(step=8, agent_id=5, action=4))]
+    records = convert.decode_agent_actions(datas)
+    assert [tuple(int(r[k]) for k in ("step", "agent_id", "action")) for r in records] == \
+        [convert.decode_agent_action(d) for d in datas] == [(9, 3, 2), (9, 4, 0), (8, 5, 4)]
+    big_endian = b"\x00\x00\x00\x00" + (9).to_bytes(4, "big") + (3).to_bytes(4, "big") + b"\x02\x00\x00\x00"
+    assert convert.decode_agent_actions(datas + [big_endian]) is None  # read one by one instead
+    assert convert.decode_agent_actions(datas + [datas[0][:9]]) is None
+    assert len(convert.decode_agent_actions([])) == 0
+
+
 @pytest.mark.parametrize("done", [False, True])
 def test_observation_bytes_decode_as_one_batch_like_the_messages(done):
     batch, rewards = stepped_batch()

@@ -144,6 +144,26 @@ def test_action_inbox_validates_every_entry():
     assert inbox.rejected["old step"] == 3
 
 
+class _Owners:
+    """Agent 2's topic is not its owner's."""
+
+    def allowed(self, via, agent):
+        return via != "agent_2/action"
+
+
+def test_many_actions_taken_at_once_as_one_by_one():
+    inbox = ActionInbox(6, RateLimitedLog(_Logger(), period_s=60.0), owners=_Owners())
+    inbox.open(5)
+    inbox.offer_one(5, 4, 1, "agent_4/action")
+    vias = [f"agent_{a}/action" for a in range(6)]
+    agents, steps, actions = np.array([0, 1, 2, 3, 4, 0, 5]), np.array([5, 4, 5, 5, 5, 5, 5]), np.array([3, 1, 2, 7, 0, 1, 4])
+    left = inbox.offer_many(agents, steps, actions, vias)
+    # left to offer_one: agent 1's old step, 3's action out of range, 4 heard already, 0's second answer
+    assert left.tolist() == [False, True, False, True, True, True, False]
+    assert inbox.heard == 3 and inbox.received.tolist() == [True, False, False, False, True, True]
+    assert inbox.close().tolist() == [3, NO_ACTION, NO_ACTION, NO_ACTION, 1, 4]  # 2: not its owner's topic
+
+
 # ------------------------------------------------------------------------ real processes
 @pytest.mark.parametrize("transport,policy,model", [
     ("batched", "random", None), ("per-agent", "random:0-3,csaf11:4-7", None),

@@ -219,6 +219,7 @@ def decode_actions(msg: ActionBatch) -> tuple[int, np.ndarray, np.ndarray]:
 
 
 AGENT_ACTION = struct.Struct("<4sIIB3x")  # AgentAction's CDR bytes: header, step, agent id, action, padding
+CDR_LE_KIND = int.from_bytes(CDR_LE[:2], "little")  # the header's first two bytes, as read by AGENT_ACTIONS
 
 
 def agent_action_bytes(step: int, agent_id: int, action: int) -> bytes:
@@ -236,6 +237,20 @@ def decode_agent_action(data: bytes) -> tuple[int, int, int] | None:
     except RuntimeError:
         return None
     return msg.step, msg.agent_id, msg.action
+
+
+AGENT_ACTIONS = np.dtype([("kind", "<u2"), ("options", "<u2"), ("step", "<u4"), ("agent_id", "<u4"),
+                          ("action", "u1"), ("padding", "V3")])  # AGENT_ACTION as a NumPy record
+
+
+def decode_agent_actions(datas: list[bytes]) -> np.ndarray | None:
+    """Many serialized AgentActions as one record array (``AGENT_ACTIONS``: step, agent_id,
+    action), a step's worth at once; None unless every one is little-endian CDR of 13-16
+    bytes (then :func:`decode_agent_action` reads each)."""
+    if not all(13 <= len(data) <= AGENT_ACTION.size for data in datas):
+        return None
+    records = np.frombuffer(b"".join(data.ljust(AGENT_ACTION.size, b"\0") for data in datas), dtype=AGENT_ACTIONS)
+    return records if (records["kind"] == CDR_LE_KIND).all() else None
 
 
 def encode_applied(step: int, actions: np.ndarray) -> ActionBatch:

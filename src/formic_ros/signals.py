@@ -78,9 +78,19 @@ class InterruptibleExecutor:
         return getattr(self._executor, name)
 
     def spin_once(self, timeout_sec: float | None = None) -> None:
+        self._spin(self._executor.spin_once, timeout_sec=timeout_sec)
+
+    def spin_ready(self) -> None:
+        """Run every event that is ready now and wait for none (``spin_once`` runs one event:
+        a loop that spins between other waits would fall behind a busy topic)."""
+        from rclpy.task import Future
+
+        self._spin(self._executor.spin_until_future_complete, Future(), timeout_sec=0.0)
+
+    def _spin(self, spin, *args, **kwargs) -> None:
         self._depth += 1
         try:
-            self._executor.spin_once(timeout_sec=timeout_sec)
+            spin(*args, **kwargs)
         finally:
             self._depth -= 1
         if self._held is not None and not self._depth:

@@ -26,8 +26,6 @@ import numpy as np
 from formic_interfaces.msg import (ActionBatch, AgentAction, AgentObservation, ObservationBatch,
                                    ScenarioDescription)
 from rclpy.node import Node
-from rclpy.parameter import Parameter
-from rclpy.type_description_service import START_TYPE_DESCRIPTION_SERVICE_PARAM
 
 from formic_agent.policy import AgentBatch, CentralPolicy
 from formic_runtime.registry import world_overrides
@@ -37,6 +35,7 @@ import formic_topics as topics
 from formic_world import Scenario
 
 from .. import convert, qos
+from ..intake import lean_node
 from ..parameters import declare_settings
 from ..timeline import Timeline
 from .claim import Claim
@@ -47,16 +46,6 @@ TRANSPORTS = ("per-agent", "batched")
 PARTIAL_WAIT_S = 0.1  # per-agent: act for the agents heard this long after a step's first observation
 POLL_S = 0.003  # batched, one host for the whole team: after answering, look for the next step without sleeping
 BLOCK_S = 0.2  # otherwise, how long the executor waits for a message before the loop looks around
-
-
-def lean_node(name: str, namespace: str) -> Node:
-    """An agent node without parameter, type-description or rosout endpoints: with a hundred
-    agents per process those would be most of the DDS endpoints to discover, and agent nodes
-    neither take parameters nor log (their host's node does)."""
-    return Node(
-        name, namespace=namespace, enable_rosout=False, start_parameter_services=False,
-        parameter_overrides=[Parameter(START_TYPE_DESCRIPTION_SERVICE_PARAM, value=False)],
-    )
 
 
 class AgentHost(Node):

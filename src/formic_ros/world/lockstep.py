@@ -20,6 +20,7 @@ from ..errors import NobodyJoined
 RESEND_S = 0.1  # step-0 observations are re-sent this often until every agent has answered
 # (the first is often lost: published when the world saw a reader that had not yet matched it)
 STEP_RESEND_S = 0.25  # later steps: re-sent to the agents that have not answered after this long
+INTAKE_WAIT_S = 0.002  # waiting for per-agent actions, the executor's other events are handled this often
 
 
 class RateLimitedLog:
@@ -92,6 +93,25 @@ class ActionInbox:
         self.received[agent] = True
         self.heard += 1
 
+    def offer_many(self, agents: np.ndarray, steps: np.ndarray, actions: np.ndarray, vias: list[str]) -> np.ndarray:
+        """Many agents' answers, each on its own topic (``vias[agent]``), taken at once: what
+        :meth:`offer_one` does for each, for the common case. Returns the mask of those left to
+        :meth:`offer_one` (another step, an action out of range, an agent already heard, a second
+        answer of one agent among them)."""
+        fresh = (steps == self.step) & self.is_open & (actions <= 4) & ~self.received[agents]
+        first = np.zeros(len(agents), dtype=bool)
+        first[np.unique(agents, return_index=True)[1]] = True
+        fresh &= first
+        taken = fresh.copy()
+        if self.owners is not None:  # one by one: each agent has its own topic (and owner)
+            for i in np.flatnonzero(fresh).tolist():
+                agent = int(agents[i])
+                taken[i] = self.owners.allowed(vias[agent], agent)
+        self.actions[agents[taken]] = actions[taken]
+        self.received[agents[taken]] = True
+        self.heard += int(taken.sum())
+        return ~fresh
+
     def offer(self, step: int, agent_ids: np.ndarray, actions: np.ndarray, source: str, via: str = "") -> None:
         """Take the valid entries of an answer for ``step``; reject and log the rest."""
         if len(agent_ids) != len(actions):
@@ -137,21 +157,26 @@ class Lockstep:
 
     def __init__(self, n_agents: int, log: RateLimitedLog, logger, deadline_s: float, startup_timeout_s: float,
                  rate_hz: float | None, allow_empty: bool = False, owners=None,
-                 why_absent: Callable[[], str | None] | None = None):
+                 why_absent: Callable[[], str | None] | None = None,
+                 take_actions: Callable[[float], bool] | None = None):
         self.log, self.logger, self.allow_empty = log, logger, allow_empty
         self.deadline_s, self.startup_timeout_s, self.rate_hz = deadline_s, startup_timeout_s, rate_hz
         self.inbox = ActionInbox(n_agents, log, owners)
         self.missed = np.zeros(n_agents, dtype=np.int64)
         self.last_answered = np.full(n_agents, -1, dtype=np.int64)  # last step each agent answered in time
         self.why_absent = why_absent
+        self.take_actions = take_actions  # (timeout s) -> False when no per-agent action is expected
 
     def collect(self, executor, deadline: float, need_all: bool,
                 resend: Callable[[np.ndarray], None] | None = None, resend_s: float = RESEND_S) -> None:
         """Spin until every agent answered (``need_all``) or ``deadline`` (monotonic s);
         ``resend(missing)`` every ``resend_s`` meanwhile (an observation lost under load;
-        ``missing``: a mask of the agents that have not answered)."""
+        ``missing``: a mask of the agents that have not answered). While per-agent actions are
+        expected, ``take_actions`` takes them and waits for them, and the executor runs the
+        events ready between its waits (every ``INTAKE_WAIT_S`` at most: ``executor.spin_ready``)."""
         next_resend = time.monotonic() + resend_s
         inbox = self.inbox
+        spun = time.monotonic()  # when the executor last ran
         while not (need_all and inbox.heard == inbox.n_agents):
             now = time.monotonic()
             if now >= deadline:
@@ -159,7 +184,13 @@ class Lockstep:
             if resend is not None and now >= next_resend:
                 resend(~self.inbox.received)
                 next_resend = now + resend_s
-            executor.spin_once(timeout_sec=min(deadline - now, next_resend - now, 0.1))
+            wait = min(deadline - now, next_resend - now, 0.1)
+            if self.take_actions is None or not self.take_actions(min(wait, INTAKE_WAIT_S)):
+                executor.spin_once(timeout_sec=wait)
+                spun = time.monotonic()
+            elif time.monotonic() - spun >= INTAKE_WAIT_S and not (need_all and inbox.heard == inbox.n_agents):
+                executor.spin_ready()  # not when the step is complete: it costs ~90 µs
+                spun = time.monotonic()
 
     def await_actions(self, executor, resend: Callable[[np.ndarray], None], started: float,
                       tick: float) -> float:
