@@ -141,10 +141,10 @@ with ros_session(int(sys.argv[1])) as executor:
     host = AgentHost([0, 1, 2, 3], "random")
     for n in [node, *host.nodes]:
         executor.add_node(n)
-    def spin(seconds):
+    def spin(seconds):  # the host's loop (it takes its observations itself), which also runs the world's events
         end = time.monotonic() + seconds
         while time.monotonic() < end:
-            executor.spin_once(timeout_sec=0.01)
+            host.spin_once(executor, 0.01)
     deadline = time.monotonic() + 30
     while not (host.claim.ready() and all(p.get_subscription_count() for p in obs_pubs)):
         assert time.monotonic() < deadline, "host never ready"

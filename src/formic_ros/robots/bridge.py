@@ -194,7 +194,7 @@ def serve_robots(agent_ids: list[int], policy: str = "formic", settings: BridgeS
         host = None
         if decided:
             host = AgentHost(decided, policy, model=model, greedy=greedy, namespace=namespace,
-                             name=name or f"robot_bridge_host_{os.getpid()}")
+                             name=name or f"robot_bridge_host_{os.getpid()}", intake=False)
             for node in host.nodes:
                 executor.add_node(node)
         bridges = [RobotBridge(a, settings, namespace) for a in agent_ids]
