@@ -162,6 +162,17 @@ def test_a_recipe_runs_every_stage_then_chooses_on_validation_and_resumes_after_
     assert result.exit_code == 0, result.output
     assert result.output.count("complete (4 episodes), skipped") == 3 and " ep " not in result.output
     assert {p: p.stat().st_mtime_ns for p in parts.glob("*/*.pt")} == stamps
+    # a finished stage's mean stands for its snapshots (what a run in progress commits); without both, one line
+    for snapshot in (parts / "middle" / "snapshots").glob("*.pt"):
+        snapshot.unlink()
+    result = CliRunner().invoke(cli, ["train", "--recipe", "smoke", "--seed", "1", "--run-dir", str(parts)])
+    assert result.exit_code == 0 and " ep " not in result.output, result.output
+    assert {p: p.stat().st_mtime_ns for p in parts.glob("*/*.pt")} == stamps
+    (parts / "middle" / "mean.pt").unlink()
+    result = CliRunner().invoke(cli, ["train", "--recipe", "smoke", "--seed", "1", "--run-dir", str(parts)])
+    # (the stage's last snapshot is taken again from its latest.pt; the first is gone)
+    assert result.exit_code == 1 and "middle: the mean needs episode00002.pt, which this run did not keep" \
+        in result.output, result.output
     # another seed is another run
     result = CliRunner().invoke(cli, ["train", "--recipe", "smoke", "--seed", "2", "--run-dir", str(parts)])
     assert result.exit_code == 1 and "another recipe, switch, scale or seed" in result.output

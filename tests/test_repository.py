@@ -23,10 +23,10 @@ LARGEST_FILE = 10 * MB
 TEXT_SUFFIXES = (".json", ".jsonl", ".txt", ".md", ".log", ".csv", ".toml", ".yaml", ".yml")
 # an absolute path of the machine a file was made on (not part of a URL or a relative path)
 MACHINE_PATH = re.compile(r"(?<![\w./~-])/(?:work|root|home|tmp|Users|mnt|scratch)/[\w.-]")
-# what a run in progress may track: its resume point, its best model, the snapshots a checkpoint
-# mean still needs, and small records
-IN_PROGRESS_ALLOWED = ("*/latest.pt", "*/best.pt", "*/snapshots/*.pt", "*.json", "*.jsonl", "*.log", "*.txt",
-                       "*.md", "*.toml", "*.csv", "*.gz")
+# what a run in progress may track: its resume point, its best model, a finished stage's mean (which
+# stands for its snapshots), the snapshots a pending mean still needs, and small records
+IN_PROGRESS_ALLOWED = ("*/latest.pt", "*/best.pt", "*/mean.pt", "*/snapshots/*.pt", "*.json", "*.jsonl", "*.log",
+                       "*.txt", "*.md", "*.toml", "*.csv", "*.gz")
 
 
 def read_manifest(path: Path) -> list[str]:
@@ -149,5 +149,4 @@ def test_disallowed_in_progress_keeps_a_run_to_checkpoints_and_records():
                "models/training/v2/basics/tb/events.out.tfevents.1.vm.2.0", "models/training/v2/seed1.log",
                "models/training/v2/validation/a/curves.png", "models/training/done/crowd/mean.pt"]
     assert disallowed_in_progress(tracked, ["models/training/v2"]) == [
-        "models/training/v2/basics/tb/events.out.tfevents.1.vm.2.0", "models/training/v2/crowd/mean.pt",
-        "models/training/v2/validation/a/curves.png"]
+        "models/training/v2/basics/tb/events.out.tfevents.1.vm.2.0", "models/training/v2/validation/a/curves.png"]
