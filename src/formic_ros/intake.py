@@ -3,11 +3,12 @@ executor dispatching each message.
 
 On the per-agent transport a step is a burst of one message per agent, published in agent order.
 Dispatched by the executor, every message wakes the reading thread, which then runs beside the
-writer and both processes' DDS receive threads: three busy threads on two cores, and the writer's
-publishes slow down. An :class:`Intake` instead sleeps until the last message it expects of the
-burst is there (one wake-up a step; a timed wait costs 50-70 µs on our VMs) and takes them all in
-one loop. Its readers belong to nodes that no executor holds (:func:`lean_node`), so nothing else
-takes their messages; the process's loop spins its executor between waits for everything else.
+writer and both processes' DDS receive threads, and each wake-up costs 50-70 µs on our VMs. With
+an :class:`Intake` the process's loop sleeps until a chunk of the messages it expects is there
+(the reader some agents ahead has one), takes everything waiting in one loop, and so wakes a few
+times a step, its takes overlapping the writer's publishes (docs/ros.md, "Speed"). Its readers
+belong to nodes that no executor holds (:func:`lean_node`), so nothing else takes their
+messages; the loop runs its executor between waits for everything else.
 """
 
 from __future__ import annotations

@@ -172,8 +172,9 @@ class Lockstep:
         """Spin until every agent answered (``need_all``) or ``deadline`` (monotonic s);
         ``resend(missing)`` every ``resend_s`` meanwhile (an observation lost under load;
         ``missing``: a mask of the agents that have not answered). While per-agent actions are
-        expected, ``take_actions`` takes them and waits for them, and the executor runs the
-        events ready between its waits (every ``INTAKE_WAIT_S`` at most: ``executor.spin_ready``)."""
+        expected, ``take_actions`` takes them and waits for them, and between its waits the
+        executor runs the events that are ready (``executor.spin_ready``, at least every
+        ``INTAKE_WAIT_S``)."""
         next_resend = time.monotonic() + resend_s
         inbox = self.inbox
         spun = time.monotonic()  # when the executor last ran

@@ -3,8 +3,9 @@
 Lockstep (default) or free-running (``rate_hz``), step 0 waiting for every agent, as docs/ros.md
 ("Lockstep, deadlines and free-running") describes. Observations go out batched on
 ``observations`` and per agent on ``agent_K/observation``, each only while it has a subscriber;
-actions come in on ``actions`` and ``agent_K/action``, validated and checked against their
-agent's owner (:mod:`formic_ros.world.ownership`). The lockstep bookkeeping (inbox, deadlines,
+actions come in on ``actions`` and ``agent_K/action`` (the latter taken by the lockstep loop
+itself: :mod:`formic_ros.intake`), validated and checked against their agent's owner
+(:mod:`formic_ros.world.ownership`). The lockstep bookkeeping (inbox, deadlines,
 re-sends, misses) is :mod:`formic_ros.world.lockstep`, what goes out :mod:`formic_ros.world.outbox`;
 training mode :mod:`formic_ros.world.training`, the process around it :mod:`formic_ros.world.serve`.
 """
