@@ -60,7 +60,14 @@ def timed(owner, name: str, totals: dict[str, float], label: str) -> None:
 
 
 def measure(settings: dict, threads: int, steps: int) -> dict:
-    """Time one episode set in this process (whatever ``formic_trainer`` is on the path)."""
+    """Time one episode set in this process (whatever ``formic_trainer`` is on the path), its
+    memory kept as `formic train` keeps it (a revision from before ``formic_runtime.memory``: as it was)."""
+    try:
+        from formic_runtime.memory import keep_freed_memory
+    except ImportError:
+        pass
+    else:
+        keep_freed_memory()
     from formic_trainer.actor import Actor
     from formic_trainer.config import TrainConfig, train_config_from_dict
     from formic_trainer.learner import Learner

@@ -34,6 +34,9 @@ class FormicGroup(click.Group):
 @click.version_option(package_name="formic-ros")
 def cli() -> None:
     """ForMIC: multi-agent foraging with learned pheromone communication."""
+    from formic_runtime.memory import keep_freed_memory
+
+    keep_freed_memory()  # a forward pass no longer faults its buffers back in every step
 
 
 @cli.command()

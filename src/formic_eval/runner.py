@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from formic_runtime.memory import keep_freed_memory
 from formic_runtime.threads import configure_threads
 
 from .matrix import PolicyOptions, Setting, StoredScenario, Task, plan_tasks
@@ -200,6 +201,7 @@ def _init_worker(threads: int) -> None:
     # Ctrl-C goes to the whole process group: let the parent alone handle it.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     configure_threads(threads)
+    keep_freed_memory()  # a spawned worker does not run the `formic` command's setup
 
 
 @dataclass

@@ -125,7 +125,10 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--options", required=True, help="The node's options (JSON), as the launcher writes them.")
     options = Path(parser.parse_args(argv).options)
     spec = json.loads(options.read_text())
+    from formic_runtime.memory import keep_freed_memory
     from formic_world.errors import InputError
+
+    keep_freed_memory()  # as every `formic` command does
 
     from ..errors import RunError
 
