@@ -5,8 +5,8 @@ threshold are unmapped, and free memory at the heap's top over its trim threshol
 and the next allocation of that size faults fresh zeroed pages in again. A policy's forward
 pass allocates and frees the same large buffers every step, so it paid that on every call:
 128 learned agents on 128x128, 1024 steps (2-core AMD EPYC, paired, the same digest): `formic
-sim` 158-165 steps/s with glibc's defaults, 209-223 without the churn; over ROS (batched) the
-host's forward pass 7.1 ms of CPU a step, 4.8-5.0 without it. Keeping freed memory costs
+sim` 131-138 steps/s with glibc's defaults, 195-218 with this; over ROS (batched) the host's
+forward pass 7.1 ms of CPU a step, 4.8-5.0 with it (docs/ros.md, "Speed"). Keeping freed memory costs
 nothing but a peak that stays resident. Elsewhere than glibc this does nothing.
 """
 

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import torch
 
-from formic_agent.checkpoint import CheckpointError, checkpoint_id, load_network, save_checkpoint
+from formic_agent.checkpoint import CheckpointError, checkpoint_id, load_network, read_checkpoint, save_checkpoint
 from formic_agent.network import ForMICNet
 
 
@@ -32,6 +32,17 @@ def average_networks(paths: list[str | os.PathLike]) -> ForMICNet:
 def average_sources(paths: list[str | os.PathLike]) -> list[str]:
     """How a mean names its inputs (``averaged_from``): file name and content hash."""
     return [f"{Path(p).name} {checkpoint_id(p)}" for p in paths]
+
+
+def averaged_from(mean: str | os.PathLike, paths: list[str | os.PathLike]) -> bool:
+    """Whether the mean at ``mean`` names exactly ``paths`` (by file name, in order), each of
+    them still there with the content it was averaged from. A snapshot no longer kept is taken
+    on the mean's word: a finished stage's mean stands for its snapshots."""
+    if not Path(mean).exists():
+        return False
+    recorded = dict(source.split() for source in read_checkpoint(mean).get("averaged_from", []))
+    return list(recorded) == [Path(p).name for p in paths] and all(
+        checkpoint_id(p) == recorded[Path(p).name] for p in paths if Path(p).exists())
 
 
 def write_average(paths: list[str | os.PathLike], out: str | os.PathLike) -> None:

@@ -10,10 +10,10 @@ import json
 from collections.abc import Callable
 from pathlib import Path
 
-from formic_agent.checkpoint import checkpoint_id, read_checkpoint
+from formic_agent.checkpoint import read_checkpoint
 from formic_world.files import held_directory
 
-from ..averaging import write_average
+from ..averaging import averaged_from, write_average
 from ..config import make_config
 from ..learner import drop_optimizer_state
 from ..train import Trainer, export_model
@@ -159,21 +159,18 @@ class RecipeRun:
     def snapshot(self, stage: Stage, episode: int) -> None:
         """Keep the weights of ``episode`` when the stage's mean needs them (once; never once the
         mean is written, which happens after its last snapshot)."""
-        target = self.snapshot_file(stage, episode)
-        if episode in stage.snapshots() and not target.exists() and not (target.parent.parent / "mean.pt").exists():
+        target, mean = self.snapshot_file(stage, episode), self.run_dir / stage.name / "mean.pt"
+        if episode in stage.snapshots() and not target.exists() and not mean.exists():
             export_model(self.run_dir / stage.name / "latest.pt", target)
 
     def average(self, stage: Stage) -> None:
-        """Write the stage's mean unless ``mean.pt`` already names exactly its snapshots (by
-        content, or by name alone when none of them is kept: a finished stage's mean stands for
-        them, so a run in progress need not track them)."""
+        """Write the stage's mean unless ``mean.pt`` already is the mean of its snapshots
+        (:func:`~formic_trainer.averaging.averaged_from`: a finished stage's mean stands for
+        those no longer kept, so a run in progress need not track them)."""
         where = self.run_dir / stage.name
         inputs = [self.snapshot_file(stage, e) for e in stage.snapshots()]
         mean = where / "mean.pt"
-        named = read_checkpoint(mean).get("averaged_from", []) if mean.exists() else []
-        recorded = dict(source.split() for source in named)  # snapshot name -> its content hash
-        if list(recorded) == [p.name for p in inputs] and all(
-                checkpoint_id(p) == recorded[p.name] for p in inputs if p.exists()):
+        if averaged_from(mean, inputs):
             return
         missing = [p.name for p in inputs if not p.exists()]
         if missing:
