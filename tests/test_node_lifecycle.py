@@ -226,6 +226,34 @@ def test_ctrl_c_during_a_child_wait_leaves_the_child_reapable():
     assert not child.alive and child.process.poll() == -signal.SIGKILL
 
 
+LEAVING = """
+import atexit, os, signal, sys, time
+from formic_ros.launch.node_process import leaving
+signal.signal(signal.SIGINT, signal.default_int_handler)  # Python's own, as after a node's block
+if sys.argv[1] == "leaving":
+    leaving()
+def late_stop():  # the launcher's stop, reaching a child that is already on its way out
+    os.kill(os.getpid(), signal.SIGINT)
+    os.kill(os.getpid(), signal.SIGTERM)
+    time.sleep(0.2)
+atexit.register(late_stop)
+"""
+
+
+@pytest.mark.parametrize("how", ["leaving", "not leaving"])
+def test_a_node_process_on_its_way_out_ignores_a_late_stop(how):
+    """The launcher stops every child when one fails; a child already leaving then exits as it
+    would have (status 0, nothing printed), not with a KeyboardInterrupt traceback at exit."""
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, "-c", LEAVING, how], capture_output=True, text=True, timeout=60)
+    if how == "leaving":
+        assert (done.returncode, done.stderr) == (0, "")
+    else:  # the failure the fix removes, shown by the same program
+        assert "Traceback" in done.stderr and "KeyboardInterrupt" in done.stderr
+
+
 LAST_S = "2.0"  # the writer's bound (deliver_last_messages' timeout_s)
 WRITER = """
 import sys, time

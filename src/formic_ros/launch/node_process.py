@@ -14,10 +14,13 @@ from __future__ import annotations
 
 import argparse
 import json
+import signal
 import sys
 from pathlib import Path
 
 from formic_runtime.json_output import emit_json as emit  # what `formic world --json` prints
+
+from ..signals import STOP_SIGNALS
 
 
 def log(text: str) -> None:
@@ -133,13 +136,27 @@ def main(argv: list[str] | None = None) -> None:
     from ..errors import RunError
 
     try:
-        sys.exit(NODES[spec["node"]](**spec["kwargs"]) or 0)
+        try:
+            code = NODES[spec["node"]](**spec["kwargs"]) or 0
+        finally:
+            leaving()
     except KeyboardInterrupt:
-        sys.exit(130)
+        code = 130
     except (RunError, InputError, ValueError, FileNotFoundError, FileExistsError) as exc:
         # e.g. a model file that does not load, a resume with other settings, robots outside the team
         error_file(options).write_text(str(exc))
-        sys.exit(1)
+        code = 1
+    sys.exit(code)
+
+
+def leaving() -> None:
+    """Ignore the stop signals once the node has stopped: a stop that reaches a process already
+    on its way out (the launcher stops every child when one fails, and another may be ending on
+    its own) would otherwise interrupt the interpreter's exit with a KeyboardInterrupt traceback
+    (once seen inside ``logging.shutdown``). SIGKILL still ends one that hangs. Not a signal mask:
+    a stop delivered to one of the process's other threads (DDS, torch) would still interrupt."""
+    for signum in STOP_SIGNALS:
+        signal.signal(signum, signal.SIG_IGN)
 
 
 def error_file(options: Path) -> Path:
