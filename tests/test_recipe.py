@@ -9,11 +9,12 @@ import hashlib
 import json
 import os
 import re
+import shutil
 from pathlib import Path
 
 import pytest
 import torch
-from click.testing import CliRunner
+from click.testing import CliRunner, Result
 
 from formic_agent.checkpoint import CheckpointError, load_network, read_checkpoint
 from formic_cli.main import cli
@@ -156,20 +157,44 @@ def test_a_recipe_runs_every_stage_then_chooses_on_validation_and_resumes_after_
     for key, value in load_network(whole / "model.pt")[0].state_dict().items():
         assert torch.equal(value, load_network(parts / "model.pt")[0].state_dict()[key]), key
 
-    # once more, through the command: nothing is trained again and the means are not rewritten
+    # once more, through the command: a finished run is finished, with or without its stages' checkpoints
+    def again(run_dir: Path = parts) -> Result:
+        return CliRunner().invoke(cli, ["train", "--recipe", "smoke", "--seed", "1", "--run-dir", str(run_dir)])
+
     stamps = {p: p.stat().st_mtime_ns for p in parts.glob("*/*.pt")}
-    result = CliRunner().invoke(cli, ["train", "--recipe", "smoke", "--seed", "1", "--run-dir", str(parts)])
+    every_stamp = {p: p.stat().st_mtime_ns for p in parts.glob("**/*.pt")}
+    result = again()
+    assert result.exit_code == 0, result.output
+    assert result.output == f"model: {parts / 'model.pt'} = {selection['chosen']}, chosen on validation " \
+        f"({parts / 'selection.json'}): the run is finished\n"
+    assert {p: p.stat().st_mtime_ns for p in parts.glob("**/*.pt")} == every_stamp
+    lean = tmp_path / "lean"  # what the repository keeps of a finished run
+    shutil.copytree(parts, lean, ignore=shutil.ignore_patterns("latest.pt", "best.pt", "mean.pt", "snapshots"))
+    assert sorted(p.name for p in lean.glob("**/*.pt")) == ["model.pt"]
+    result = again(lean)
+    assert result.exit_code == 0 and result.output.endswith("the run is finished\n"), result.output
+    assert sorted(p.name for p in lean.glob("**/*.pt")) == ["model.pt"]
+    (lean / "model.pt").write_bytes((parts / "first" / "latest.pt").read_bytes())
+    result = again(lean)
+    assert result.exit_code == 1 and f"{lean / 'model.pt'} is not the {selection['chosen']} that " \
+        f"{lean / 'selection.json'} chose: restore it, or remove selection.json" in result.output, result.output
+    # without its selection, the stages are skipped and the validation episodes reused: the same model
+    (parts / "selection.json").unlink()
+    result = again()
     assert result.exit_code == 0, result.output
     assert result.output.count("complete (4 episodes), skipped") == 3 and " ep " not in result.output
     assert {p: p.stat().st_mtime_ns for p in parts.glob("*/*.pt")} == stamps
+    assert json.loads((parts / "selection.json").read_text())["chosen"] == selection["chosen"]
     # a finished stage's mean stands for its snapshots (what a run in progress commits); without both, one line
     for snapshot in (parts / "middle" / "snapshots").glob("*.pt"):
         snapshot.unlink()
-    result = CliRunner().invoke(cli, ["train", "--recipe", "smoke", "--seed", "1", "--run-dir", str(parts)])
-    assert result.exit_code == 0 and " ep " not in result.output, result.output
+    (parts / "selection.json").unlink()
+    result = again()
+    assert result.exit_code == 0 and " ep " not in result.output and "skipped" in result.output, result.output
     assert {p: p.stat().st_mtime_ns for p in parts.glob("*/*.pt")} == stamps
     (parts / "middle" / "mean.pt").unlink()
-    result = CliRunner().invoke(cli, ["train", "--recipe", "smoke", "--seed", "1", "--run-dir", str(parts)])
+    (parts / "selection.json").unlink()
+    result = again()
     # (the stage's last snapshot is taken again from its latest.pt; the first is gone)
     assert result.exit_code == 1 and "middle: the mean needs episode00002.pt, which this run did not keep" \
         in result.output, result.output

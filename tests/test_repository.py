@@ -74,9 +74,12 @@ def with_machine_paths(texts: dict[str, str]) -> list[str]:
 
 
 def disallowed_in_progress(tracked: list[str], in_progress: list[str]) -> list[str]:
-    """Files a run in progress tracks beyond its checkpoints, snapshots and small records."""
+    """Files a run in progress tracks beyond its checkpoints, snapshots and small records, and
+    the models of its finished seeds (a ``model.pt`` beside the ``selection.json`` that chose it)."""
+    finished = {p.rsplit("/", 1)[0] for p in tracked if p.endswith("/selection.json")}
     return sorted(p for p in tracked if inside(p, in_progress)
-                  and not any(fnmatch(p, pattern) for pattern in IN_PROGRESS_ALLOWED))
+                  and not any(fnmatch(p, pattern) for pattern in IN_PROGRESS_ALLOWED)
+                  and not (p.endswith("/model.pt") and p.rsplit("/", 1)[0] in finished))
 
 
 # --- the real tree -------------------------------------------------------------------------------
@@ -147,6 +150,9 @@ def test_disallowed_in_progress_keeps_a_run_to_checkpoints_and_records():
     tracked = ["models/training/v2/recipe.json", "models/training/v2/basics/latest.pt",
                "models/training/v2/crowd/snapshots/episode00008.pt", "models/training/v2/crowd/mean.pt",
                "models/training/v2/basics/tb/events.out.tfevents.1.vm.2.0", "models/training/v2/seed1.log",
-               "models/training/v2/validation/a/curves.png", "models/training/done/crowd/mean.pt"]
+               "models/training/v2/validation/a/curves.png", "models/training/done/crowd/mean.pt",
+               "models/training/v2/seed1/model.pt", "models/training/v2/seed1/selection.json",
+               "models/training/v2/seed2/model.pt"]  # seed 1 finished; seed 2's model not chosen yet
     assert disallowed_in_progress(tracked, ["models/training/v2"]) == [
-        "models/training/v2/basics/tb/events.out.tfevents.1.vm.2.0", "models/training/v2/validation/a/curves.png"]
+        "models/training/v2/basics/tb/events.out.tfevents.1.vm.2.0", "models/training/v2/seed2/model.pt",
+        "models/training/v2/validation/a/curves.png"]

@@ -19,7 +19,7 @@ from ..learner import drop_optimizer_state
 from ..train import Trainer, export_model
 from .definition import Recipe, RecipeError, Stage, stage_config
 from .files import held_identity, shown_recipe, write_json
-from .validation import select_model
+from .validation import finished_model, select_model
 
 # a stage's own CPU clock per episode replaces its planned `cost` once it has run this many episodes
 MEASURED_AFTER = 8
@@ -77,6 +77,8 @@ def run_recipe(recipe: Recipe, run_dir: Path, seed: int, echo: Callable[[str], N
         raise ValueError(f"threads must be at least 1, not {threads}")
     with held_directory(run_dir):
         run = RecipeRun(recipe, Path(run_dir), seed, echo, threads)
+        if (model := finished_model(run)) is not None:
+            return model
         for index in range(len(recipe.stages)):
             run.stage(index)
         return select_model(run)

@@ -3,6 +3,7 @@ candidate's episodes on it, and the choice by :data:`SELECTION_RULE` copied to `
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -48,6 +49,25 @@ def select_model(run: RecipeRun) -> Path:
         run.echo(f"  {n:4d}  {sampled[n]:8.1f}  {empty['food_by_team'][n]:8.1f}  {less[n]:5.0%}")
     run.echo(run.budget(len(run.recipe.stages)))
     return model
+
+def finished_model(run: RecipeRun) -> Path | None:
+    """``model.pt`` of a run whose choice is made (``selection.json`` names it and the file is
+    the chosen candidate's copy), else None. A finished run keeps its model, selection,
+    validation episodes and logs, not its stages' checkpoints: without this, running it again
+    would train every stage from scratch."""
+    from formic_eval.matrix import file_digest
+
+    selection_file, model = run.run_dir / "selection.json", run.run_dir / "model.pt"
+    if not selection_file.exists():
+        return None
+    selection = json.loads(selection_file.read_text())
+    chosen = selection["chosen"]
+    if not model.exists() or file_digest(model) != selection["candidates"][chosen]["digest"]:
+        raise RecipeError(f"{model} is not the {chosen} that {selection_file} chose: restore it, or remove "
+                          "selection.json to validate and choose again")
+    run.echo(f"model: {model} = {chosen}, chosen on validation ({selection_file}): the run is finished")
+    return model
+
 
 def trains_with_pheromones(run: RecipeRun) -> bool:
     """Whether the recipe's agents see the pheromone channel (every stage does the same)."""
