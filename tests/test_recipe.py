@@ -178,6 +178,10 @@ def test_a_recipe_runs_every_stage_then_chooses_on_validation_and_resumes_after_
     result = again(lean)
     assert result.exit_code == 1 and f"{lean / 'model.pt'} is not the {selection['chosen']} that " \
         f"{lean / 'selection.json'} chose: restore it, or remove selection.json" in result.output, result.output
+    (lean / "selection.json").write_text('{"chosen": "last.mean"')
+    result = again(lean)
+    assert result.exit_code == 1 and f"{lean / 'selection.json'} is not a readable choice (JSONDecodeError: " \
+        in result.output and "remove it to validate and choose again" in result.output, result.output
     # without its selection, the stages are skipped and the validation episodes reused: the same model
     (parts / "selection.json").unlink()
     result = again()

@@ -60,9 +60,14 @@ def finished_model(run: RecipeRun) -> Path | None:
     selection_file, model = run.run_dir / "selection.json", run.run_dir / "model.pt"
     if not selection_file.exists():
         return None
-    selection = json.loads(selection_file.read_text())
-    chosen = selection["chosen"]
-    if not model.exists() or file_digest(model) != selection["candidates"][chosen]["digest"]:
+    try:
+        selection = json.loads(selection_file.read_text())
+        chosen = selection["chosen"]
+        digest = selection["candidates"][chosen]["digest"]
+    except (ValueError, KeyError, TypeError) as exc:
+        raise RecipeError(f"{selection_file} is not a readable choice ({exc.__class__.__name__}: {exc}): remove it "
+                          "to validate and choose again") from None
+    if not model.exists() or file_digest(model) != digest:
         raise RecipeError(f"{model} is not the {chosen} that {selection_file} chose: restore it, or remove "
                           "selection.json to validate and choose again")
     run.echo(f"model: {model} = {chosen}, chosen on validation ({selection_file}): the run is finished")
