@@ -163,6 +163,41 @@ def test_interrupt_keeps_finished_episodes_and_resume_finishes(tmp_path):
     assert not summary["interrupted"] and len(_lines(log.path)) == 3
 
 
+@pytest.mark.parametrize("signum", ["SIGTERM", "SIGHUP"])
+def test_a_stop_signal_to_a_background_eval_stops_its_workers_and_keeps_its_episodes(tmp_path, signum):
+    """`formic eval &` ignores Ctrl-C (the shell's rule for background jobs): SIGTERM or SIGHUP
+    stop it as Ctrl-C would, with no worker writing into a closed pipe, and a rerun resumes."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    args = [sys.executable, "-m", "formic_cli.main", "eval", "--algorithms", "random", "--sizes", "32", "--teams",
+            "4", "--obstacles", "0", "--env", "infinite", "--scenarios", "60", "--steps", "400", "--workers", "2",
+            "--out", str(tmp_path / "out")]
+    log = tmp_path / "out" / "episodes.jsonl"
+    run = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                           preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
+    try:
+        deadline = time.monotonic() + 90
+        while not (log.exists() and log.read_text().count("\n") >= 2) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        run.send_signal(getattr(signal, signum))
+        out, err = run.communicate(timeout=60)
+    finally:
+        if run.poll() is None:
+            os.kill(run.pid, signal.SIGKILL)
+            run.wait()
+    assert run.returncode == 130, err[-2000:]
+    assert "interrupted: rerun the same command to resume" in err and "Traceback" not in err, err[-2000:]
+    kept = len(_lines(log))
+    assert 2 <= kept < 60
+    resumed = subprocess.run([*args, "--scenarios", "60", "--json"], capture_output=True, text=True, timeout=300)
+    assert resumed.returncode == 0, resumed.stderr[-2000:]
+    assert json.loads(resumed.stdout)["episodes"] == {"total": 60, "done": 60, "computed": 60 - kept, "reused": kept}
+
+
 def test_the_report_names_the_workers_each_episode_was_timed_with(run_copy):
     """Decision times depend on how many worker processes shared the cores: each record keeps
     its count, and a resumed call's report names every count among its episodes, not its own."""

@@ -210,7 +210,7 @@ def test_ctrl_c_during_a_child_wait_leaves_the_child_reapable():
     import threading
 
     from formic_ros.launch.processes import Child
-    from formic_ros.signals import handling
+    from formic_runtime.signals import handling
 
     child = Child("sleeper", subprocess.Popen(["sleep", "30"], start_new_session=True))
     # Python's own Ctrl-C handler: a suite started in the background (`cmd &`) inherits SIGINT

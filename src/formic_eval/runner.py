@@ -220,11 +220,15 @@ def run_tasks(
     progress: bool | None = None,
     on_record: Callable[[dict], None] | None = None,
 ) -> RunStats:
-    """Run the tasks not yet in ``done`` (which gains the new records); Ctrl-C stops cleanly.
+    """Run the tasks not yet in ``done`` (which gains the new records); a stop signal (Ctrl-C,
+    SIGTERM, SIGHUP: :mod:`formic_runtime.signals`) stops cleanly: the workers are ended before
+    they can write into a closed pipe, the finished episodes are kept, later signals wait.
 
     ``progress=None`` shows the bar only on a terminal.
     """
     from tqdm import tqdm
+
+    from formic_runtime.signals import FirstStopInterrupts, handling
 
     pending = [t for t in tasks if t.key not in done]
     stats = RunStats(reused=len(tasks) - len(pending))
@@ -234,24 +238,28 @@ def run_tasks(
     bar = tqdm(total=len(pending), desc="formic eval", unit="episode", file=sys.stderr, disable=disable,
                dynamic_ncols=True)
     results = _results(pending, workers)
-    try:
-        for record in results:
-            record["workers"] = timed_with  # the processes that shared the cores while its times were measured
-            log.append(record)
-            done[record["key"]] = record
-            stats.computed += 1
-            where = f"{record['algorithm']} {record['size']}/{record['agents']}/{record['env']}"
-            bar.set_postfix_str(where, refresh=False)
-            bar.update()
-            if on_record is not None:
-                on_record(record)
-    except KeyboardInterrupt:
-        stats.interrupted = True
-    finally:
-        results.close()
-        bar.close()
-        log.close()
-        stats.wall_s = time.perf_counter() - start
+    stop_rule = FirstStopInterrupts()
+    # SIGINT keeps Python's handler (or the SIG_IGN a background job inherits, as the shell means)
+    with handling((signal.SIGTERM, signal.SIGHUP), stop_rule):
+        try:
+            for record in results:
+                record["workers"] = timed_with  # the processes that shared the cores while its times were measured
+                log.append(record)
+                done[record["key"]] = record
+                stats.computed += 1
+                where = f"{record['algorithm']} {record['size']}/{record['agents']}/{record['env']}"
+                bar.set_postfix_str(where, refresh=False)
+                bar.update()
+                if on_record is not None:
+                    on_record(record)
+        except KeyboardInterrupt:
+            stats.interrupted = True
+        finally:
+            stop_rule.stop()  # a second signal now would cut the workers' end short
+            results.close()
+            bar.close()
+            log.close()
+            stats.wall_s = time.perf_counter() - start
     return stats
 
 

@@ -19,7 +19,9 @@ from collections.abc import Iterator, Mapping
 from contextlib import ExitStack, contextmanager, suppress
 from pathlib import Path
 
-from .signals import INTERRUPT_SIGNALS, InterruptibleExecutor, handling
+from formic_runtime.signals import INTERRUPT_SIGNALS, handling
+
+from .executor import InterruptibleExecutor
 
 DISCOVERY_VARIABLE = "ROS_AUTOMATIC_DISCOVERY_RANGE"
 DOMAIN_VARIABLE = "ROS_DOMAIN_ID"
@@ -142,7 +144,7 @@ def ros_session(domain_id: int | None = None, interrupt: bool = True) -> Iterato
     spin loop (``spin_once`` with short timeouts, never ``spin()``: the events executor from
     the wheels ignores signals inside ``spin()``), so every node shuts down through the same
     ``finally``; with ``interrupt=False`` the signal handlers are left as they are (inside
-    :func:`formic_ros.signals.stop_requests`). Nodes added to the executor are destroyed on exit.
+    :func:`formic_runtime.signals.stop_requests`). Nodes added to the executor are destroyed on exit.
     """
     check_domain_id(domain_id)
     configure_this_process(domain_id)

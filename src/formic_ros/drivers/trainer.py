@@ -34,7 +34,7 @@ from ..convert_learning import WeightsPayload, decode_rollout, encode_weights
 from ..env import ros_session
 from ..graph import publishers_of
 from ..parameters import declare_settings, settings_of
-from ..signals import stop_requests
+from formic_runtime.signals import stop_requests
 from .lag import DEFAULT_MAX_LAG
 
 SILENCE_S = 10.0  # no rollout for this long: the trainer names the hosts it waits for (again at 2x, 4x, ...)

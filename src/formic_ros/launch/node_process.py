@@ -19,8 +19,7 @@ import sys
 from pathlib import Path
 
 from formic_runtime.json_output import emit_json as emit  # what `formic world --json` prints
-
-from ..signals import STOP_SIGNALS
+from formic_runtime.signals import STOP_SIGNALS
 
 
 def log(text: str) -> None:

@@ -21,7 +21,8 @@ from contextlib import suppress
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..signals import STOP_SIGNALS, FirstStopInterrupts, handling
+from formic_runtime.signals import STOP_SIGNALS, FirstStopInterrupts, handling
+
 from .node_process import error_file
 
 STOP_GRACE_S = (5.0, 3.0)  # after SIGINT, after SIGTERM; then SIGKILL
@@ -155,7 +156,7 @@ class Children:
     :attr:`codes`. A child's log goes to stderr, or to ``LOG_DIR/NAME.log``.
 
     Inside the context (in the main thread) the first stop signal raises KeyboardInterrupt;
-    later ones, and any during the stop, are ignored (:mod:`formic_ros.signals`): a second Ctrl-C,
+    later ones, and any during the stop, are ignored (:mod:`formic_runtime.signals`): a second Ctrl-C,
     ``timeout``'s SIGTERM to the command and then to its group, or a closing terminal's SIGHUP
     would otherwise end the launcher mid-stop, and the parent-death signal would SIGKILL a
     recorder before it closed its file."""

@@ -38,7 +38,7 @@ from .. import qos
 from ..env import check_domain_id, ros_session
 from ..graph import RECORDER_NODE, recorder_report
 from ..parameters import declare_settings, settings_of
-from ..signals import stop_requests
+from formic_runtime.signals import stop_requests
 
 DISCOVERY_PERIOD_S = 0.2
 REPORT_PERIOD_S = 0.02  # a changed match count is reported within this long
