@@ -139,6 +139,29 @@ def test_a_killed_training_process_resumes_from_its_last_checkpoint(tmp_path):
     assert after == before + 1
 
 
+def test_ctrl_c_ends_a_training_run_with_the_command_that_resumes_it(tmp_path):
+    import signal
+
+    run_dir = tmp_path / "run"
+    sets = ["--set", "teams=4", "--set", "episode_steps=32", "--set", "rollout_steps=16", "--set", "threads=1"]
+    process = subprocess.Popen([sys.executable, "-m", "formic_cli.main", "train", "--preset", "cpu", "--run-dir",
+                                str(run_dir), *sets, "--episodes", "1000"], stdout=subprocess.PIPE,
+                               stderr=subprocess.STDOUT, text=True,
+                               preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    try:
+        start = time.monotonic()
+        while not (run_dir / "latest.pt").exists() and time.monotonic() - start < 120:
+            time.sleep(0.2)
+        process.send_signal(signal.SIGINT)
+        output, _ = process.communicate(timeout=60)
+    finally:
+        process.kill()
+        process.wait(timeout=30)
+    assert process.returncode == 130, output[-2000:]
+    assert output.splitlines()[-1] == f"interrupted: rerun the same command to resume from {run_dir / 'latest.pt'}"
+    assert "Traceback" not in output and "Aborted" not in output
+
+
 def test_overrides_are_typed_and_checked():
     assert parse_overrides(["lr=0.001", "pheromones=false", "teams=8,16", "network=cpu"]) == {
         "lr": 0.001, "pheromones": False, "teams": (8, 16), "network": "cpu"}

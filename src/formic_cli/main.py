@@ -269,7 +269,9 @@ def train(ctx, preset, run_dir, episodes, minutes, fresh, overrides, export, rec
     with click_errors(TypeError, ValueError):
         cfg = make_config(preset, **parse_overrides(overrides))
     if episodes != 0:
-        Trainer(cfg, Path(run_dir), resume=not fresh, log=click.echo).train(episodes=episodes, minutes=minutes)
+        resume = f"interrupted: rerun the same command to resume from {Path(run_dir) / 'latest.pt'}"
+        with click_errors(interrupted=resume):
+            Trainer(cfg, Path(run_dir), resume=not fresh, log=click.echo).train(episodes=episodes, minutes=minutes)
     if export:
         export_model(Path(run_dir) / "latest.pt", Path(export))
         click.echo(f"exported {export}")
