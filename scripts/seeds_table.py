@@ -37,9 +37,15 @@ from formic_eval.runner import folder_episodes  # noqa: E402
 from formic_eval.seeds import SeedValidation, shipped_seed, spread, study  # noqa: E402
 from formic_eval.seeds_report import seeds_report  # noqa: E402
 
-BEGIN, END = "<!-- seeds:begin (scripts/seeds_table.py) -->", "<!-- seeds:end -->"
-RUNS = ROOT / "models" / "training" / "recipe-paper"
-EVALS = ROOT / "eval" / "recipe-paper"
+
+
+def markers(recipe: str, planned: int | None) -> tuple[str, str]:
+    """The block's begin and end markers: the first recipe's plain (the page's history), any other's
+    naming the arguments that rebuild it, so that one page holds a block per recipe."""
+    if recipe == "paper" and planned is None:
+        return "<!-- seeds:begin (scripts/seeds_table.py) -->", "<!-- seeds:end -->"
+    args = f"--recipe {recipe}" + (f" --planned {planned}" if planned else "")
+    return f"<!-- seeds:begin (scripts/seeds_table.py {args}) -->", f"<!-- seeds:end {args} -->"
 
 
 def episodes(folder: Path, algorithm: str) -> list[dict]:
@@ -72,24 +78,45 @@ def tables(runs: list[Path], evals: list[Path], baselines_folder: Path) -> list[
             "#### Test (Fig. 5's cells)", "", *seeds_report(result)]
 
 
+def progress_line(runs: list[Path], evals: list[Path], planned: int) -> str:
+    """How far an experiment of ``planned`` seeds is: its statistics so far are provisional."""
+    evaluated = sum(bool(folder_episodes(folder)) for folder in evals)
+    return (f"**In progress: {len(runs)} of the {planned} seeds fixed in advance have finished training, "
+            f"{evaluated} of them with test episodes.** Everything below rests on those seeds alone; the "
+            f"targets are judged on all {planned}.")
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--runs", nargs="+", type=Path, help="each seed's recipe run directory")
     parser.add_argument("--evals", nargs="*", type=Path, default=[],
                         help="each seed's eval_model.sh folder, same order")
     parser.add_argument("--baselines", type=Path, default=ROOT / "eval" / "readme", help="the baselines' eval folder")
+    parser.add_argument("--recipe", default="paper",
+                        help="without --runs: the recipe whose finished seeds to read (models/training/recipe-NAME, "
+                             "eval/recipe-NAME)")
+    parser.add_argument("--planned", type=int,
+                        help="the number of seeds the experiment fixed in advance: while fewer have finished, the "
+                             "block says so first")
     add_block_options(parser, "seeds")
     args = parser.parse_args()
     if args.runs is None:
-        args.runs = sorted(run for run in RUNS.glob("seed*") if (run / "selection.json").is_file())
-        args.evals = [EVALS / run.name for run in args.runs]
+        runs_folder = ROOT / "models" / "training" / f"recipe-{args.recipe}"
+        if not runs_folder.is_dir():
+            parser.error(f"--recipe {args.recipe}: no {runs_folder.relative_to(ROOT)}")
+        args.runs = sorted((run for run in runs_folder.glob("seed*") if (run / "selection.json").is_file()),
+                           key=lambda run: int(run.name[4:]) if run.name[4:].isdigit() else run.name)
+        args.evals = [ROOT / "eval" / f"recipe-{args.recipe}" / run.name for run in args.runs]
     if args.evals and len(args.evals) != len(args.runs):
         parser.error(f"--evals names {len(args.evals)} folders for {len(args.runs)} runs")
     try:
-        lines = tables(args.runs, args.evals, args.baselines)
+        lines = tables(args.runs, args.evals, args.baselines) if args.runs else ["(no finished seed yet)"]
     except ValueError as exc:
         sys.exit(f"seeds_table: {exc}")
-    return publish(lines, BEGIN, END, args, "scripts/seeds_table.py")
+    if args.planned and len(args.runs) < args.planned:
+        lines = [progress_line(args.runs, args.evals, args.planned), "", *lines]
+    begin, end = markers(args.recipe, args.planned)
+    return publish(lines, begin, end, args, "scripts/seeds_table.py")
 
 
 if __name__ == "__main__":

@@ -147,24 +147,49 @@ def test_evals_must_match_the_runs_one_for_one(tmp_path):
     assert done.returncode == 2 and "--evals names 2 folders for 1 runs" in done.stderr
 
 
-def test_results_page_seeds_block_is_current():
-    """The results page's seeds block is what scripts/seeds_table.py builds from the committed runs and
-    evaluation folders (its defaults: every finished recipe-paper seed)."""
+def test_an_experiment_in_progress_says_how_many_of_its_seeds_the_table_rests_on(tmp_path):
+    runs = [write_selection(tmp_path / "runs" / "seed1", "novalid.mean", 200.0, {16: 110.0}),
+            write_selection(tmp_path / "runs" / "seed2", "novalid.mean", 210.0, {16: 120.0})]
+    evals = [write_episodes(tmp_path / "evals" / "seed1", [record("formic", "a", 100)]), tmp_path / "evals" / "seed2"]
+    baselines = write_episodes(tmp_path / "baselines", [record("csaf11", "a", 90)])
+
+    def table(*args: str) -> subprocess.CompletedProcess:
+        return subprocess.run([sys.executable, str(ROOT / "scripts" / "seeds_table.py"), "--runs", *map(str, runs),
+                               "--evals", *map(str, evals), "--baselines", str(baselines), *args],
+                              capture_output=True, text=True, timeout=60)
+
+    done = table("--planned", "8")
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.startswith("**In progress: 2 of the 8 seeds fixed in advance have finished training, 1 of "
+                                  "them with test episodes.** Everything below rests on those seeds alone; the "
+                                  "targets are judged on all 8.\n\n#### Validation\n")
+    assert "Intervals are over the 1 seed, not over scenarios." in done.stdout
+    assert not table("--planned", "2").stdout.startswith("**In progress")
+    missing = subprocess.run([sys.executable, str(ROOT / "scripts" / "seeds_table.py"), "--recipe", "nothing"],
+                             capture_output=True, text=True, timeout=60)
+    assert missing.returncode == 2 and "--recipe nothing: no models/training/recipe-nothing" in missing.stderr
+
+
+@pytest.mark.parametrize("args", [[], ["--recipe", "paper-v6", "--planned", "8"]])
+def test_results_page_seeds_blocks_are_current(args):
+    """The results page's seeds blocks are what scripts/seeds_table.py builds from the committed runs
+    and evaluation folders: every finished seed of the first recipe, and of paper-v6's eight."""
     script = ROOT / "scripts" / "seeds_table.py"
-    done = subprocess.run([sys.executable, str(script), "--check", str(ROOT / "docs" / "results.md")],
+    done = subprocess.run([sys.executable, str(script), *args, "--check", str(ROOT / "docs" / "results.md")],
                           capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
 
 
-def test_every_finished_seed_has_its_current_card_in_seeds_md():
-    """models/training/recipe-paper/SEEDS.md holds scripts/model_card.py's block for every seed
-    that has finished (its selection.json), each as the run folder now says."""
+@pytest.mark.parametrize("recipe", ["recipe-paper", "recipe-paper-v6"])
+def test_every_finished_seed_has_its_current_card_in_seeds_md(recipe):
+    """A recipe's SEEDS.md holds scripts/model_card.py's block for every seed that has finished
+    (its selection.json), each as the run folder now says."""
     import re
 
-    page = ROOT / "models" / "training" / "recipe-paper" / "SEEDS.md"
+    page = ROOT / "models" / "training" / recipe / "SEEDS.md"
     carded = re.findall(r"<!-- card:begin \(scripts/model_card.py (\S+)\) -->", page.read_text())
     finished = sorted(p.parent.relative_to(ROOT).as_posix()
-                      for p in (ROOT / "models" / "training" / "recipe-paper").glob("seed*/selection.json"))
+                      for p in (ROOT / "models" / "training" / recipe).glob("seed*/selection.json"))
     assert sorted(carded) == finished
     for run in carded:
         done = subprocess.run([sys.executable, str(ROOT / "scripts" / "model_card.py"), run, "--check", str(page)],

@@ -47,7 +47,8 @@ def test_table(result: SeedsStudy) -> list[str]:
 
 
 def method_line(result: SeedsStudy) -> str:
-    return (f"Intervals are over the {len(result.names)} seeds, not over scenarios. Mean and IQM (interquartile "
+    seeds = f"{len(result.names)} seed{'s' if len(result.names) != 1 else ''}"
+    return (f"Intervals are over the {seeds}, not over scenarios. Mean and IQM (interquartile "
             f"mean): 95% stratified bootstrap ({REPLICATES:,} replicates, generator seed {BOOTSTRAP_SEED}). "
             "Against a baseline: each seed's paired mean difference on the cell's scenarios, then a t interval "
             "over seeds (its verdict: ahead, level or behind) and a bootstrap one.")
