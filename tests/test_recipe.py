@@ -601,6 +601,7 @@ def test_a_stage_that_ends_on_its_clock_hands_on_and_is_complete_on_resume(tmp_p
         assert json.loads((run_dir / stage / "progress.json").read_text()) == \
             json.loads(json.dumps(read_checkpoint(run_dir / stage / "latest.pt")["progress"]))
     again: list[str] = []
+    (run_dir / "selection.json").unlink()  # its choice undone: not a finished run, every stage is looked at
     run_recipe(load_recipe(str(recipe)), run_dir, seed=1, echo=again.append)
     assert "stage 1/3 first: complete (2 episodes), skipped" in again
     bad = tmp_path / "bad.toml"
