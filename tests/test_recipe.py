@@ -149,6 +149,19 @@ def test_a_recipe_runs_every_stage_then_chooses_on_validation_and_resumes_after_
     run(parts, stop_at="| recipe 6/12 episodes")
     assert read_checkpoint(parts / "middle" / "latest.pt")["progress"]["episode"] == 2
     assert not (parts / "middle" / "snapshots" / "episode00002.pt").exists()
+    status = CliRunner().invoke(cli, ["train", "--recipe", "smoke", "--seed", "1", "--run-dir", str(parts), "--status"])
+    assert status.exit_code == 0, status.output
+    lines = status.output.splitlines()
+    assert lines[0].startswith("first: complete, 4 of 4 episodes, ") and lines[0].endswith(" CPU-h")
+    assert lines[1].startswith("middle: in progress, 2 of 4 episodes, ")
+    assert lines[2:4] == ["last: not started (4 episodes)", "validation: not started"]
+    assert re.fullmatch(r"\d+\.\d\d of 0\.0 CPU-h spent", lines[4]), lines[4]  # smoke plans no costs: none left
+    finished = CliRunner().invoke(cli, ["train", "--recipe", "smoke", "--seed", "1", "--run-dir", str(whole),
+                                        "--status"]).output.splitlines()
+    played = sorted([*SMOKE.candidates, selection["chosen"] + "-channel-empty", "first.latest"])  # (stage_validation)
+    assert finished[3] == "validation: " + ", ".join(f"{name} 2 of 2 episodes" for name in played)
+    assert finished[4].startswith(f"finished: model.pt = {selection['chosen']} (validation food "
+                                  f"{selection['candidates'][selection['chosen']]['food_mean']:.1f}); ")
     first = digest(parts / "first" / "latest.pt")
     lines = run(parts)
     assert lines[0] == "stage 1/3 first: complete (4 episodes), skipped"
@@ -535,12 +548,16 @@ def test_the_fourth_version_puts_the_reference_stages_wheels_on_the_schedule_clo
     assert "1, 2, 3, 4, 5, 6, 7, 8" in v4.text
 
 
-def costed_smoke(tmp_path: Path) -> Path:
+def costed_smoke(tmp_path: Path, schedule_end: int = 0) -> Path:
     """The smoke recipe with planned costs (CPU-seconds per episode: first 10, middle 20, last 30,
-    a validation episode 5) and a first stage of 10 episodes, long enough to measure its own."""
+    a validation episode 5) and a first stage of 10 episodes, long enough to measure its own
+    (with ``schedule_end``, ending on its clock there)."""
+    tmp_path.mkdir(parents=True, exist_ok=True)
     recipe = tmp_path / "costed.toml"
-    recipe.write_text(SMOKE_TEXT.replace('episodes = 4\nstart = "scratch"',
-                                         'episodes = 10\nstart = "scratch"\ncost = 10')
+    text = SMOKE_TEXT if not schedule_end else (  # the middle stage's mean needs its own end: no clock there
+        SMOKE_TEXT.replace("checkpoint_every = 1\n", f"checkpoint_every = 1\nschedule_end = {schedule_end}\n", 1)
+        .replace("learning_agents = 1\n", "learning_agents = 1\nschedule_end = 0\n", 1))
+    recipe.write_text(text.replace('episodes = 4\nstart = "scratch"', 'episodes = 10\nstart = "scratch"\ncost = 10')
                       .replace('start = "first"', 'start = "first"\ncost = 20')
                       .replace('start = "middle.mean"', 'start = "middle.mean"\ncost = 30')
                       .replace("steps = 128", "steps = 128\ncost = 5"))
@@ -626,6 +643,8 @@ def test_the_time_left_is_each_stages_measured_cost_after_eight_episodes_else_it
     assert cpu_seconds_left(recipe, 3) == 30 and cpu_seconds_left(recipe, 3, validated=True) == 0
     assert cpu_seconds_left(recipe, 3, with_pheromones=False) == 20  # no channel-empty replay
     assert cpu_seconds_left(SMOKE, 0) is None  # no planned costs: no time left shown
+    clocked = load_recipe(str(costed_smoke(tmp_path / "clocked", schedule_end=6)))
+    assert cpu_seconds_left(clocked, 0, 2, 20.0) == 4 * 10 + rest  # the first stage ends at clock 6 of its 10
     run = RecipeRun(recipe, tmp_path / "run", 1, print)
     run.episodes, run.cpu_seconds = 10, 720.0  # the first stage done
     assert run.budget(1, 2, 1440.0) == "recipe 12/18 episodes, 0.60/0.0 CPU-h (over budget), ~0.1 CPU-h left"

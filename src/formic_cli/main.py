@@ -254,14 +254,17 @@ def bench_decide(size, teams, steps, seed, policy, model, threads, as_json) -> N
 @click.option("--threads", type=click.IntRange(min=1),
               help="With --recipe: torch threads for every stage and processes for its validation, instead of "
                    "the recipe's (speed only; a run may resume with another count).")
+@click.option("--status", is_flag=True,
+              help="With --recipe: say where the run in RUN_DIR stands (each stage, the validation, the CPU-hours "
+                   "spent and left) and train nothing; safe while it trains.")
 @click.pass_context
 def train(ctx, preset, run_dir, episodes, minutes, fresh, overrides, export, recipe, seed, switch, scale,
-          threads) -> None:
+          threads, status) -> None:
     """Train a policy; checkpoints to RUN_DIR/latest.pt, TensorBoard logs to RUN_DIR/tb.
 
     Resumes from RUN_DIR/latest.pt when it exists. `--episodes 0 --export FILE` only exports."""
-    if recipe is not None or seed is not None or switch or scale != 1 or threads is not None:
-        _train_recipe(ctx, recipe, seed, switch, scale, threads, Path(run_dir))
+    if recipe is not None or seed is not None or switch or scale != 1 or threads is not None or status:
+        _train_recipe(ctx, recipe, seed, switch, scale, threads, Path(run_dir), status)
         return
     from formic_trainer.config import make_config, parse_overrides
     from formic_trainer.train import Trainer, export_model
@@ -278,12 +281,12 @@ def train(ctx, preset, run_dir, episodes, minutes, fresh, overrides, export, rec
 
 
 def _train_recipe(ctx: click.Context, recipe: str | None, seed: int | None, switch: str, scale: float,
-                  threads: int | None, run_dir: Path) -> None:
+                  threads: int | None, run_dir: Path, status: bool = False) -> None:
     """`formic train --recipe`: the recipe sets every stage, so the single-run options are refused."""
     from click.core import ParameterSource
 
     from formic_trainer.recipes.files import load_recipe
-    from formic_trainer.recipes.run import run_recipe
+    from formic_trainer.recipes.run import run_recipe, run_status
 
     single_run = {"preset": "--preset", "episodes": "--episodes", "minutes": "--minutes", "fresh": "--fresh",
                   "overrides": "--set", "export": "--export"}
@@ -292,6 +295,10 @@ def _train_recipe(ctx: click.Context, recipe: str | None, seed: int | None, swit
         raise click.UsageError("--recipe and --seed go together (a single run's seed: --set seed=N)")
     if given:
         raise click.UsageError(f"--recipe sets every stage itself: drop {', '.join(given)}")
+    if status:
+        with click_errors(TypeError, ValueError):
+            click.echo("\n".join(run_status(load_recipe(recipe, switch, scale), run_dir, seed)))
+        return
     with click_errors(TypeError, ValueError, interrupted="interrupted: rerun the same command to resume"):
         run_recipe(load_recipe(recipe, switch, scale), run_dir, seed, echo=click.echo, threads=threads)
 

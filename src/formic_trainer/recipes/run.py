@@ -32,16 +32,18 @@ def cpu_seconds_left(recipe: Recipe, index: int, episode: int = 0, cpu_seconds: 
     = the number of stages: all done): each unfinished stage's episodes left at its measured cost
     per episode once it has run :data:`MEASURED_AFTER` episodes, else at its planned ``cost``; and
     the validation's planned cost (every candidate, and the chosen one again with the pheromone
-    channel empty when the recipe trains ``with_pheromones``) unless ``validated``. None where a
-    cost is needed and the recipe plans none."""
+    channel empty when the recipe trains ``with_pheromones``) unless ``validated``. A stage that
+    ends on its schedule clock (``schedule_end``) is counted to that episode (the clock may hold
+    back a few episodes more). None where a cost is needed and the recipe plans none."""
     left = 0.0
     for i, stage in enumerate(recipe.stages[index:], start=index):
         done = episode if i == index else 0
         cost = cpu_seconds / done if done >= MEASURED_AFTER else stage.cost
-        if done < stage.episodes:
+        end = min(stage.episodes, stage.settings.get("schedule_end") or stage.episodes)  # 0 spells off
+        if done < end:
             if cost is None:
                 return None
-            left += (stage.episodes - done) * cost
+            left += (end - done) * cost
     if not validated:
         v = recipe.validation
         if v.cost is None:
@@ -55,7 +57,10 @@ def _progress(checkpoint: Path) -> dict:
     the schedule clock's episode."""
     if not checkpoint.exists():
         return {"episode": 0, "cpu_seconds": 0.0, "schedule": 0}
-    progress = read_checkpoint(checkpoint)["progress"]
+    return _counters(read_checkpoint(checkpoint)["progress"])
+
+
+def _counters(progress: dict) -> dict:
     return {"episode": progress["episode"], "cpu_seconds": progress.get("cpu_seconds", progress["seconds"]),
             "schedule": progress.get("schedule", {"episode": progress["episode"]})["episode"]}
 
@@ -64,6 +69,57 @@ def _ended(stage: Stage, progress: dict) -> bool:
     """Whether a stage at ``progress`` is over: its episodes played, or its clock at ``schedule_end``."""
     end = stage.settings.get("schedule_end") or None  # 0 spells off in a recipe
     return progress["episode"] >= stage.episodes or (end is not None and progress["schedule"] >= end)
+
+
+def run_status(recipe: Recipe, run_dir: Path, seed: int) -> list[str]:
+    """Where a run stands, read from its files alone and without its lock (it may be training):
+    each stage complete, in progress or not started, with its episodes and CPU-hours (a finished
+    stage's counters from its ``progress.json`` once its checkpoint is gone); the validation
+    episodes played; the choice once made; the CPU-hours spent and left (as the progress line
+    counts them, the validation's left at its planned cost per episode)."""
+    from formic_eval.runner import folder_episodes
+
+    claim = run_dir / "recipe.json"
+    if not claim.exists():
+        return [f"{run_dir}: not started"]
+    held = json.loads(claim.read_text())
+    if (held["seed"], held_identity(held)) != (seed, recipe.identity):
+        raise RecipeError(f"{run_dir} holds a run of another recipe, switch, scale or seed ({claim})")
+    lines, spent, current = [], 0.0, None
+    for index, stage in enumerate(recipe.stages):
+        where = run_dir / stage.name
+        stored = where / "progress.json"
+        progress = (_counters(json.loads(stored.read_text())) if stored.exists() and not (where / "latest.pt").exists()
+                    else _progress(where / "latest.pt"))
+        spent += progress["cpu_seconds"]
+        done = f"{progress['episode']} of {stage.episodes} episodes, {progress['cpu_seconds'] / 3600:.2f} CPU-h"
+        end = stage.settings.get("schedule_end") or None
+        if _ended(stage, progress):
+            lines.append(f"{stage.name}: complete, {done}")
+            continue
+        current = current or (index, progress)
+        if progress["episode"]:
+            clock = "" if end is None else f" (its clock at {progress['schedule']}, ending it at {end})"
+            lines.append(f"{stage.name}: in progress, {done}{clock}")
+        else:
+            lines.append(f"{stage.name}: not started ({stage.episodes} episodes)")
+    v, folder = recipe.validation, run_dir / "validation"
+    kept = sorted(d for d in folder.iterdir() if d.is_dir() and d.name != "scenarios") if folder.is_dir() else []
+    played = {d.name: len(folder_episodes(d)) for d in kept}
+    spent += sum(r["wall_s"] for name in played for r in folder_episodes(folder / name))
+    lines.append("validation: " + (", ".join(f"{name} {n} of {v.episodes} episodes" for name, n in played.items())
+                                   or "not started"))
+    hours = f"{spent / 3600:.2f} of {recipe.budget_cpu_hours:.1f} CPU-h spent"
+    if (run_dir / "selection.json").exists():
+        selection = json.loads((run_dir / "selection.json").read_text())
+        return [*lines, f"finished: model.pt = {selection['chosen']} (validation food "
+                        f"{selection['candidates'][selection['chosen']]['food_mean']:.1f}); {hours}"]
+    with_pheromones = make_config(recipe.preset, **recipe.stages[-1].settings).pheromones
+    index, progress = current or (len(recipe.stages), {"episode": 0, "cpu_seconds": 0.0})
+    left = cpu_seconds_left(recipe, index, progress["episode"], progress["cpu_seconds"], True, with_pheromones)
+    if left is not None and v.cost is not None:  # the validation's episodes not yet played
+        left += v.cost * max(0, v.episodes * (len(recipe.candidates) + with_pheromones) - sum(played.values()))
+    return [*lines, hours + ("" if left is None or v.cost is None else f", ~{left / 3600:.1f} CPU-h left")]
 
 
 def run_recipe(recipe: Recipe, run_dir: Path, seed: int, echo: Callable[[str], None] = print,
