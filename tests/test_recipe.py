@@ -10,6 +10,8 @@ import json
 import os
 import re
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -28,6 +30,7 @@ from formic_trainer.recipes.definition import RecipeError, stage_config, trained
 from formic_trainer.recipes.files import load_recipe
 from formic_trainer.recipes.run import cpu_seconds_left, run_recipe
 from formic_trainer.recipes.validation import SELECTION_RULE
+from formic_world.files import held_directory
 
 ROOT = Path(__file__).resolve().parents[1]
 SMOKE = load_recipe("smoke")
@@ -181,9 +184,27 @@ def test_a_recipe_runs_every_stage_then_chooses_on_validation_and_resumes_after_
     assert result.output == f"model: {parts / 'model.pt'} = {selection['chosen']}, chosen on validation " \
         f"({parts / 'selection.json'}): the run is finished\n"
     assert {p: p.stat().st_mtime_ns for p in parts.glob("**/*.pt")} == every_stamp
-    lean = tmp_path / "lean"  # what the repository keeps of a finished run
-    shutil.copytree(parts, lean, ignore=shutil.ignore_patterns("latest.pt", "best.pt", "mean.pt", "snapshots"))
-    assert sorted(p.name for p in lean.glob("**/*.pt")) == ["model.pt"]
+    lean = tmp_path / "lean"  # what the repository keeps of a finished run (scripts/lean_run.py)
+    shutil.copytree(parts, lean)
+    (lean / "validation" / "middle.mean" / "a figure.png").write_bytes(b"png")
+    lean_run = [sys.executable, str(ROOT / "scripts" / "lean_run.py")]
+    with held_directory(lean):  # a process still holds it (validating): refused, nothing removed
+        held = subprocess.run([*lean_run, str(lean)], capture_output=True, text=True, timeout=60)
+    assert held.returncode == 1 and "is in use by another process" in held.stderr, held.stderr
+    assert (lean / "middle" / "mean.pt").exists()
+    unfinished = subprocess.run([*lean_run, str(tmp_path / "whole" / "first")], capture_output=True, text=True,
+                                timeout=60)
+    assert unfinished.returncode == 1 and "has made no choice yet" in unfinished.stderr
+    done = subprocess.run([*lean_run, str(lean)], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    kept = sorted(p.relative_to(lean).as_posix() for p in lean.rglob("*") if p.is_file())
+    validations = sorted(p.name for p in (lean / "validation").iterdir())
+    assert kept == sorted(["model.pt", "recipe.json", "selection.json",
+                           *(f"{stage}/{name}" for stage in ("first", "middle", "last")
+                             for name in ("config.json", "progress.json")),
+                           *(f"validation/{name}/{file}" for name in validations
+                             for file in ("episodes.jsonl.gz", "results.csv", "results.md"))]), kept
+    assert validations == sorted([*SMOKE.candidates, selection["chosen"] + "-channel-empty"])
     result = again(lean)
     assert result.exit_code == 0 and result.output.endswith("the run is finished\n"), result.output
     assert sorted(p.name for p in lean.glob("**/*.pt")) == ["model.pt"]

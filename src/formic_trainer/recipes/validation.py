@@ -51,15 +51,25 @@ def select_model(run: RecipeRun) -> Path:
     return model
 
 def finished_model(run: RecipeRun) -> Path | None:
-    """``model.pt`` of a run whose choice is made (``selection.json`` names it and the file is
-    the chosen candidate's copy), else None. A finished run keeps its model, selection,
-    validation episodes and logs, not its stages' checkpoints: without this, running it again
-    would train every stage from scratch."""
+    """``model.pt`` of a run whose choice is made, else None. A finished run keeps its model,
+    selection, validation episodes and logs, not its stages' checkpoints: without this, running
+    it again would train every stage from scratch."""
+    if not (run.run_dir / "selection.json").exists():
+        return None
+    model, chosen = chosen_model(run.run_dir)
+    run.echo(f"model: {model} = {chosen}, chosen on validation ({run.run_dir / 'selection.json'}): the run is finished")
+    return model
+
+
+def chosen_model(run_dir: Path) -> tuple[Path, str]:
+    """``run_dir``'s ``model.pt`` and the candidate it is, checked against ``selection.json``
+    (the file is the chosen candidate's copy); a RecipeError where the run has made no choice
+    or the two disagree."""
     from formic_eval.matrix import file_digest
 
-    selection_file, model = run.run_dir / "selection.json", run.run_dir / "model.pt"
+    selection_file, model = run_dir / "selection.json", run_dir / "model.pt"
     if not selection_file.exists():
-        return None
+        raise RecipeError(f"{run_dir} has made no choice yet (no selection.json): not a finished run")
     try:
         selection = json.loads(selection_file.read_text())
         chosen = selection["chosen"]
@@ -70,8 +80,7 @@ def finished_model(run: RecipeRun) -> Path | None:
     if not model.exists() or file_digest(model) != digest:
         raise RecipeError(f"{model} is not the {chosen} that {selection_file} chose: restore it, or remove "
                           "selection.json to validate and choose again")
-    run.echo(f"model: {model} = {chosen}, chosen on validation ({selection_file}): the run is finished")
-    return model
+    return model, chosen
 
 
 def trains_with_pheromones(run: RecipeRun) -> bool:
