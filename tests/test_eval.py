@@ -163,6 +163,18 @@ def test_interrupt_keeps_finished_episodes_and_resume_finishes(tmp_path):
     assert not summary["interrupted"] and len(_lines(log.path)) == 3
 
 
+def test_a_second_evaluation_into_a_folder_in_use_is_refused_at_once(tmp_path):
+    from formic_world.files import held_directory
+
+    args = ["eval", "--algorithms", "random", "--sizes", "16", "--teams", "2", "--obstacles", "0", "--env",
+            "infinite", "--scenarios", "1", "--steps", "8", "--workers", "1", "--out", str(tmp_path / "out")]
+    with held_directory(tmp_path / "out"):  # another `formic eval` running there
+        refused = CliRunner().invoke(cli, args)
+    assert refused.exit_code == 1 and "is in use by another process" in refused.output, refused.output
+    assert not (tmp_path / "out" / "episodes.jsonl").exists()
+    assert CliRunner().invoke(cli, args).exit_code == 0  # free again
+
+
 @pytest.mark.parametrize("signum", ["SIGTERM", "SIGHUP"])
 def test_a_stop_signal_to_a_background_eval_stops_its_workers_and_keeps_its_episodes(tmp_path, signum):
     """`formic eval &` ignores Ctrl-C (the shell's rule for background jobs): SIGTERM or SIGHUP

@@ -295,36 +295,40 @@ def evaluate(
     source: str = "",
 ) -> dict:
     """Run (or resume) every episode of the matrix, then write the results, figures and report.
+    The run holds ``out`` (:func:`~formic_world.files.held_directory`): a second evaluation into
+    the same folder fails at once instead of appending the same episodes twice.
 
     Returns the summary that ``formic eval --json`` prints (:func:`write_report`).
     """
+    from formic_world.files import held_directory
+
     from .results import aggregate
 
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     tasks = plan_tasks(matrix, algorithms, options)
-    log = folder_log(out)
-    done = log.load()
-    stats = run_tasks(tasks, log, done, workers=workers, progress=progress)
-    records = [done[t.key] for t in tasks if t.key in done]
-    cells = aggregate(records)
-    run = {
-        "algorithms": algorithms,
-        "scenarios": source,
-        "settings": len(matrix),
-        "episodes": {"total": len(tasks), "done": len(records), "computed": stats.computed, "reused": stats.reused},
-        "interrupted": stats.interrupted,
-        "workers": workers,
-        "episode_workers": workers_of(records),
-        "model": options.model,
-        "model_digest": options.model_digest,
-        "greedy": options.greedy,
-        "no_pheromones": options.no_pheromones,
-        "pheromone_variant": options.pheromone_variant,
-        "wall_s": round(stats.wall_s, 3),
-        "log": {"path": str(log.path), "torn_line_removed": log.repaired, "unreadable_lines": log.skipped_lines},
-    }
-    return write_report(out, records, cells, run, {"episodes_jsonl": str(log.path), "scenarios": source})
+    with held_directory(out):
+        log = folder_log(out)
+        done = log.load()
+        stats = run_tasks(tasks, log, done, workers=workers, progress=progress)
+        records = [done[t.key] for t in tasks if t.key in done]
+        cells = aggregate(records)
+        run = {
+            "algorithms": algorithms,
+            "scenarios": source,
+            "settings": len(matrix),
+            "episodes": {"total": len(tasks), "done": len(records), "computed": stats.computed, "reused": stats.reused},
+            "interrupted": stats.interrupted,
+            "workers": workers,
+            "episode_workers": workers_of(records),
+            "model": options.model,
+            "model_digest": options.model_digest,
+            "greedy": options.greedy,
+            "no_pheromones": options.no_pheromones,
+            "pheromone_variant": options.pheromone_variant,
+            "wall_s": round(stats.wall_s, 3),
+            "log": {"path": str(log.path), "torn_line_removed": log.repaired, "unreadable_lines": log.skipped_lines},
+        }
+        return write_report(out, records, cells, run, {"episodes_jsonl": str(log.path), "scenarios": source})
 
 
 def write_report(out: Path, records: list[dict], cells: list[dict], run: dict,
