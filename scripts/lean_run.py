@@ -46,6 +46,7 @@ def lean(run: Path) -> list[str]:
             lines.append(seal(folder, drop_derived=True))
             for figure in folder.glob("*.png"):
                 figure.unlink()
+            (folder / ".lock").unlink(missing_ok=True)  # its evaluation's (held only under the run's own lock)
         shutil.rmtree(validation / "scenarios", ignore_errors=True)
         for stage in sorted(p for p in run.iterdir() if p.is_dir() and p.name != "validation"):
             for name in ("snapshots", "tb"):
