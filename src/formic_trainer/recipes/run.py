@@ -19,7 +19,7 @@ from ..learner import drop_optimizer_state
 from ..train import Trainer, export_model
 from .definition import Recipe, RecipeError, Stage, stage_config
 from .files import held_identity, shown_recipe, write_json
-from .validation import finished_model, select_model
+from .validation import chosen_model, finished_model, select_model
 
 # a stage's own CPU clock per episode replaces its planned `cost` once it has run this many episodes
 MEASURED_AFTER = 8
@@ -105,15 +105,16 @@ def run_status(recipe: Recipe, run_dir: Path, seed: int) -> list[str]:
             lines.append(f"{stage.name}: not started ({stage.episodes} episodes)")
     v, folder = recipe.validation, run_dir / "validation"
     kept = sorted(d for d in folder.iterdir() if d.is_dir() and d.name != "scenarios") if folder.is_dir() else []
-    played = {d.name: len(folder_episodes(d)) for d in kept}
-    spent += sum(r["wall_s"] for name in played for r in folder_episodes(folder / name))
+    records = {d.name: folder_episodes(d) for d in kept}
+    played = {name: len(episodes) for name, episodes in records.items()}
+    spent += sum(r["wall_s"] for episodes in records.values() for r in episodes)
     lines.append("validation: " + (", ".join(f"{name} {n} of {v.episodes} episodes" for name, n in played.items())
                                    or "not started"))
     hours = f"{spent / 3600:.2f} of {recipe.budget_cpu_hours:.1f} CPU-h spent"
     if (run_dir / "selection.json").exists():
-        selection = json.loads((run_dir / "selection.json").read_text())
-        return [*lines, f"finished: model.pt = {selection['chosen']} (validation food "
-                        f"{selection['candidates'][selection['chosen']]['food_mean']:.1f}); {hours}"]
+        _, chosen = chosen_model(run_dir)  # a RecipeError where the model is not the one chosen
+        food = json.loads((run_dir / "selection.json").read_text())["candidates"][chosen]["food_mean"]
+        return [*lines, f"finished: model.pt = {chosen} (validation food {food:.1f}); {hours}"]
     with_pheromones = make_config(recipe.preset, **recipe.stages[-1].settings).pheromones
     index, progress = current or (len(recipe.stages), {"episode": 0, "cpu_seconds": 0.0})
     left = cpu_seconds_left(recipe, index, progress["episode"], progress["cpu_seconds"], True, with_pheromones)

@@ -50,6 +50,7 @@ def select_model(run: RecipeRun) -> Path:
     run.echo(run.budget(len(run.recipe.stages)))
     return model
 
+
 def finished_model(run: RecipeRun) -> Path | None:
     """``model.pt`` of a run whose choice is made, else None. A finished run keeps its model,
     selection, validation episodes and logs, not its stages' checkpoints: without this, running
