@@ -8,7 +8,8 @@ A finished run (its ``selection.json`` written and ``model.pt`` the chosen candi
 validation episodes (sealed: ``episodes.jsonl.gz`` with ``results.md`` and ``results.csv``),
 each stage's ``config.json`` and ``progress.json``, ``recipe.json`` and its log. This removes the
 rest: every stage's checkpoints, snapshots and TensorBoard files, the validation's regenerated
-scenarios, the derived exports and figures. It refuses a run that is not finished, or that a
+scenarios, the derived exports and figures (lock files stay: git ignores them, and removing one
+another process may hold would let a third in). It refuses a run that is not finished, or that a
 process holds (one still validating), and prints what each part weighed before and after.
 """
 
@@ -46,14 +47,12 @@ def lean(run: Path) -> list[str]:
             lines.append(seal(folder, drop_derived=True))
             for figure in folder.glob("*.png"):
                 figure.unlink()
-            (folder / ".lock").unlink(missing_ok=True)  # its evaluation's (held only under the run's own lock)
         shutil.rmtree(validation / "scenarios", ignore_errors=True)
         for stage in sorted(p for p in run.iterdir() if p.is_dir() and p.name != "validation"):
             for name in ("snapshots", "tb"):
                 shutil.rmtree(stage / name, ignore_errors=True)
             for checkpoint in stage.glob("*.pt"):
                 checkpoint.unlink()
-    (run / ".lock").unlink(missing_ok=True)
     lines.append(f"{run}: {before:,} -> {size(run):,} bytes")
     return lines
 
