@@ -82,6 +82,13 @@ def disallowed_in_progress(tracked: list[str], in_progress: list[str]) -> list[s
                   and not (p.endswith("/model.pt") and p.rsplit("/", 1)[0] in finished))
 
 
+def unshown_figures(tracked: list[str], pages: dict[str, str]) -> list[str]:
+    """Figures under eval/ that no page names: `formic eval --out DIR --report` rebuilds them
+    from the folder's episodes, so only those a page shows are worth their bytes."""
+    return sorted(p for p in tracked if p.startswith("eval/") and p.endswith(".png")
+                  and not any("/".join(p.split("/")[-2:]) in text for text in pages.values()))
+
+
 # --- the real tree -------------------------------------------------------------------------------
 
 def tree_sizes() -> dict[str, int]:
@@ -100,6 +107,11 @@ def test_no_tracked_file_is_over_10_mb():
 def test_no_json_or_text_file_holds_a_machine_path():
     texts = {p: (ROOT / p).read_text(errors="replace") for p in tracked_files() if p.endswith(TEXT_SUFFIXES)}
     assert with_machine_paths(texts) == []
+
+
+def test_an_evaluations_figures_are_tracked_only_where_a_page_shows_them():
+    pages = {p: (ROOT / p).read_text() for p in tracked_files() if p.endswith(".md")}
+    assert unshown_figures(tracked_files(), pages) == []
 
 
 def test_runs_in_progress_track_only_checkpoints_and_records():
@@ -144,6 +156,12 @@ def test_with_machine_paths_finds_absolute_paths_in_text_files_only():
              "run/results.md": "Scenarios: models/training/run/validation", "src/a.py": "'/work/x'",
              "README.md": "see https://host/home/page and ~/work/x", "run/old.json": '"/tmp/x"'}
     assert with_machine_paths(texts) == ["run/config.json", "run/old.json", "run/train.log"]
+
+
+def test_unshown_figures_are_those_no_page_names_by_folder_and_name():
+    tracked = ["eval/a/seed3/food.png", "eval/a/seed2/food.png", "eval/b/curves.png", "docs/x.png", "eval/b/r.md"]
+    pages = {"README.md": "![food](eval/a/seed3/food.png)", "docs/results.md": "see ../eval/b/"}
+    assert unshown_figures(tracked, pages) == ["eval/a/seed2/food.png", "eval/b/curves.png"]
 
 
 def test_disallowed_in_progress_keeps_a_run_to_checkpoints_and_records():
