@@ -116,7 +116,7 @@ def plot(seeds: list[SeedLog], out: Path) -> None:
     figure, axes = plt.subplots(len(SIGNALS), 1, figsize=(11, 2.4 * len(SIGNALS)), sharex=True)
     colours = plt.get_cmap("tab10")
     for i, seed in enumerate(seeds):
-        offsets = seed.offsets()
+        offsets, label = seed.offsets(), seed.name  # the legend names a seed once, at its first line
         for stage in seed.stages:
             points = seed.points.get(stage, {})
             episodes = sorted(points)
@@ -125,16 +125,14 @@ def plot(seeds: list[SeedLog], out: Path) -> None:
             x = np.asarray(episodes) + offsets[stage]
             for axis, (name, _) in zip(axes, SIGNALS):
                 y = rolling(episodes, [points[e][name] for e in episodes])
-                axis.plot(x, y, color=colours(i % 10), lw=1.2, label=seed.name if stage == seed.stages[-1] or
-                          stage == next(s for s in seed.stages if seed.points.get(s)) else None)
+                axis.plot(x, y, color=colours(i % 10), lw=1.2, label=label)
+            label = None
             for axis in axes:
                 axis.axvline(offsets[stage], color=colours(i % 10), lw=0.5, ls=":")
     for axis, (name, title) in zip(axes, SIGNALS):
         axis.set_ylabel(title, fontsize=8)
         axis.grid(alpha=0.3)
-    handles, labels = axes[0].get_legend_handles_labels()
-    unique = dict(zip(labels, handles))
-    axes[0].legend(unique.values(), unique.keys(), fontsize=8, ncol=min(8, len(unique)))
+    axes[0].legend(fontsize=8, ncol=min(8, len(seeds)))
     first = max(seeds, key=lambda s: len(s.stages))
     for stage, start in first.offsets().items():
         axes[0].annotate(stage, (start, 1.0), xycoords=("data", "axes fraction"), fontsize=8, va="bottom")

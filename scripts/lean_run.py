@@ -43,10 +43,7 @@ def lean(run: Path) -> list[str]:
     with held_directory(run):  # InputError while the run's own process holds it
         validation = run / "validation"
         kept = sorted(d for d in validation.iterdir() if d.is_dir() and d.name != "scenarios")
-        for folder in kept:
-            lines.append(seal(folder, drop_derived=True))
-            for figure in folder.glob("*.png"):
-                figure.unlink()
+        lines += [seal(folder, drop_derived=True) for folder in kept]
         shutil.rmtree(validation / "scenarios", ignore_errors=True)
         for stage in sorted(p for p in run.iterdir() if p.is_dir() and p.name != "validation"):
             for name in ("snapshots", "tb"):

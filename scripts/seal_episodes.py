@@ -6,8 +6,9 @@ The sealed log is the compact form the repository keeps (``formic_eval.runner.Ep
 ``formic eval --report`` and the table generators read it as they read the plain log, and a
 resumed evaluation appends new episodes to a plain ``episodes.jsonl`` beside it, which the next
 sealing folds in. Sealing the same episodes again gives the same bytes. With ``--drop-derived`` the folder also
-loses the per-episode exports that ``formic eval --report FOLDER`` rebuilds from the log
-(``episodes.csv``, ``curves.csv``, ``results.json``); ``results.md`` and ``results.csv`` stay.
+loses what ``formic eval --report FOLDER`` rebuilds from the log: the per-episode exports
+(``episodes.csv``, ``curves.csv``, ``results.json``) and the report's figures; ``results.md`` and
+``results.csv`` stay, and so does a figure another script drew there (the README's).
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from formic_eval.plots import REPORT_FIGURES
 from formic_eval.runner import folder_log
 
 # what `formic eval --report` writes from the episode log alone, beside the summaries kept
@@ -26,6 +28,7 @@ def seal(folder: Path, drop_derived: bool = False) -> str:
     before and after)."""
     log = folder_log(folder)
     derived = [folder / name for name in DERIVED if drop_derived and (folder / name).exists()]
+    derived += sorted(folder.glob(REPORT_FIGURES)) if drop_derived else []
     before = sum(path.stat().st_size for path in (log.path, log.sealed_path, *derived) if path.exists())
     sealed = log.seal()
     for path in derived:
@@ -38,7 +41,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("folders", nargs="+", type=Path, metavar="FOLDER",
                         help="an evaluation folder (formic eval --out)")
     parser.add_argument("--drop-derived", action="store_true",
-                        help=f"also delete {', '.join(DERIVED)} (formic eval --report FOLDER rebuilds them)")
+                        help=f"also delete {', '.join(DERIVED)} and the report's figures (formic eval --report "
+                             "FOLDER rebuilds them)")
     args = parser.parse_args(argv)
     for folder in args.folders:
         try:

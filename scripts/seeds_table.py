@@ -67,21 +67,22 @@ def validation_table(validations: list[SeedValidation]) -> list[str]:
     return lines
 
 
-def tables(runs: list[Path], evals: list[Path], baselines_folder: Path) -> list[str]:
-    """The validation table and the seed that ships, then the test table and the statistics over seeds."""
+def tables(runs: list[Path], evals: list[Path], baselines_folder: Path, planned: int | None = None) -> list[str]:
+    """The validation table and the seed that ships, then the test table and the statistics over
+    seeds; first, while fewer than ``planned`` seeds have finished, how far the experiment is."""
     validations = [SeedValidation.load(run) for run in runs]
     per_seed = {v.name: episodes(folder, "formic") for v, folder in zip(validations, evals)}
     per_seed = {name: records for name, records in per_seed.items() if records}
     baselines = {algorithm: episodes(baselines_folder, algorithm) for algorithm, _ in RIVALS}
     result = study(per_seed, baselines, {v.name: v.food_mean for v in validations})
-    return ["#### Validation", "", *validation_table(validations), "",
+    progress = [progress_line(len(runs), len(per_seed), planned), ""] if planned and len(runs) < planned else []
+    return [*progress, "#### Validation", "", *validation_table(validations), "",
             "#### Test (Fig. 5's cells)", "", *seeds_report(result)]
 
 
-def progress_line(runs: list[Path], evals: list[Path], planned: int) -> str:
+def progress_line(finished: int, evaluated: int, planned: int) -> str:
     """How far an experiment of ``planned`` seeds is: its statistics so far are provisional."""
-    evaluated = sum(bool(folder_episodes(folder)) for folder in evals)
-    return (f"**In progress: {len(runs)} of the {planned} seeds fixed in advance have finished training, "
+    return (f"**In progress: {finished} of the {planned} seeds fixed in advance have finished training, "
             f"{evaluated} of them with test episodes.** Everything below rests on those seeds alone; the "
             f"targets are judged on all {planned}.")
 
@@ -110,11 +111,10 @@ def main() -> int:
     if args.evals and len(args.evals) != len(args.runs):
         parser.error(f"--evals names {len(args.evals)} folders for {len(args.runs)} runs")
     try:
-        lines = tables(args.runs, args.evals, args.baselines) if args.runs else ["(no finished seed yet)"]
+        lines = (tables(args.runs, args.evals, args.baselines, args.planned) if args.runs else
+                 [*([progress_line(0, 0, args.planned), ""] if args.planned else []), "(no finished seed yet)"])
     except ValueError as exc:
         sys.exit(f"seeds_table: {exc}")
-    if args.planned and len(args.runs) < args.planned:
-        lines = [progress_line(args.runs, args.evals, args.planned), "", *lines]
     begin, end = markers(args.recipe, args.planned)
     return publish(lines, begin, end, args, "scripts/seeds_table.py")
 

@@ -52,5 +52,5 @@ for seed in $seeds; do
   if [ -e "$evals/episodes.jsonl" ]; then
     .venv/bin/python scripts/seal_episodes.py --drop-derived "$evals"
   fi
-  rm -rf "$evals/scenarios" "$evals"/*.png
+  rm -rf "$evals/scenarios"
 done

@@ -186,7 +186,7 @@ def test_a_recipe_runs_every_stage_then_chooses_on_validation_and_resumes_after_
     assert {p: p.stat().st_mtime_ns for p in parts.glob("**/*.pt")} == every_stamp
     lean = tmp_path / "lean"  # what the repository keeps of a finished run (scripts/lean_run.py)
     shutil.copytree(parts, lean)
-    (lean / "validation" / "middle.mean" / "a figure.png").write_bytes(b"png")
+    (lean / "validation" / "middle.mean" / "food_vs_team_s16_t128.png").write_bytes(b"png")  # the report's
     lean_run = [sys.executable, str(ROOT / "scripts" / "lean_run.py")]
     with held_directory(lean):  # a process still holds it (validating): refused, nothing removed
         held = subprocess.run([*lean_run, str(lean)], capture_output=True, text=True, timeout=60)

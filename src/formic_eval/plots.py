@@ -49,6 +49,9 @@ def _team_axis(ax, teams: list[int]) -> None:
     ax.grid(alpha=0.3)
 
 
+REPORT_FIGURES = "*_s*_t*.png"  # what plot_all names its figures: NAME_sSIZE_tSTEPS.png
+
+
 def plot_all(cells: list[dict], out: Path) -> list[str]:
     """Every figure for every (size, steps) group of cells; returns the PNG paths."""
     paths = []
