@@ -4,13 +4,15 @@
 # RUNS/seedS.log (it resumes from the run's checkpoints; a finished run says so at once); then
 # scripts/lean_run.py on the finished run; then scripts/eval_model.sh --fig5-only into
 # EVALS/seedS (its summary appended to the run's log), sealed. A seed whose run or evaluation another
-# process holds is skipped, so two of these side by side share the seeds, one core each; after a
-# kill the same command goes on. EVAL=0 skips the evaluations.
+# process holds is skipped, so two of these side by side share the seeds, one core each; a seed
+# trained and tested (its sealed episodes there) is passed over. Ctrl-C stops the training after its
+# episode set in progress (checkpoint saved) and this script with it (130); after a stop or a kill
+# the same command goes on. EVAL=0 skips the evaluations.
 # Usage: scripts/train_seeds.sh RECIPE SEEDS [RUNS (models/training/recipe-RECIPE)]
 # [EVALS (eval/recipe-RECIPE)]. FORMIC may name another way to call the CLI (e.g. one pinned to
 # a worktree: "env PYTHONPATH=/work/recipe-tree/src .venv/bin/python -m formic_cli.main").
 set -euo pipefail
-usage() { sed -n '2,11p' "$0"; }
+usage() { sed -n '2,13p' "$0"; }
 case "${1:-}" in -h|--help) usage; exit 0 ;; esac
 [ $# -ge 2 ] || { usage >&2; exit 2; }
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
@@ -22,12 +24,19 @@ case "$SEEDS" in
   *) seeds=${SEEDS//,/ } ;;
 esac
 held() { [ -e "$1/.lock" ] && ! flock -n "$1/.lock" true; }
+stopped() { echo "seed $seed: stopped (see $1): rerun the same command to go on" >&2; exit 130; }
 mkdir -p "$RUNS" "$EVALS"
 for seed in $seeds; do
   run=$RUNS/seed$seed evals=$EVALS/seed$seed
+  if [ -e "$run/selection.json" ] && [ -e "$evals/episodes.jsonl.gz" ] && [ ! -e "$evals/episodes.jsonl" ]; then
+    echo "seed $seed: trained and tested ($evals), skipped"; continue
+  fi
   if held "$run"; then echo "seed $seed: another process is training it, skipped"; continue; fi
   echo "seed $seed: training ($run.log)"
-  if ! $FORMIC train --recipe "$RECIPE" --seed "$seed" --run-dir "$run" >>"$run.log" 2>&1; then
+  status=0
+  $FORMIC train --recipe "$RECIPE" --seed "$seed" --run-dir "$run" >>"$run.log" 2>&1 || status=$?
+  if [ $status = 130 ]; then stopped "$run.log"; fi
+  if [ $status != 0 ]; then
     if tail -n 1 "$run.log" | grep -q "is in use by another process"; then
       echo "seed $seed: another process is training it, skipped"; continue
     fi
@@ -43,7 +52,10 @@ for seed in $seeds; do
   [ "${EVAL:-1}" = 0 ] && continue
   if held "$evals"; then echo "seed $seed: another process is evaluating it, skipped"; continue; fi
   echo "seed $seed: test episodes on Fig. 5's cells ($evals)"
-  if ! scripts/eval_model.sh --fig5-only "$run/model.pt" "$evals" --workers 1 >>"$run.log" 2>&1; then
+  status=0
+  scripts/eval_model.sh --fig5-only "$run/model.pt" "$evals" --workers 1 >>"$run.log" 2>&1 || status=$?
+  if [ $status = 130 ]; then stopped "$run.log"; fi
+  if [ $status != 0 ]; then
     if tail -n 3 "$run.log" | grep -q "is in use by another process"; then
       echo "seed $seed: another process is evaluating it, skipped"; continue
     fi

@@ -158,8 +158,60 @@ def test_ctrl_c_ends_a_training_run_with_the_command_that_resumes_it(tmp_path):
         process.kill()
         process.wait(timeout=30)
     assert process.returncode == 130, output[-2000:]
-    assert output.splitlines()[-1] == f"interrupted: rerun the same command to resume from {run_dir / 'latest.pt'}"
+    lines = output.splitlines()
+    assert lines[-1] == f"interrupted: rerun the same command to resume from {run_dir / 'latest.pt'}"
     assert "Traceback" not in output and "Aborted" not in output
+    # the set in progress ended and was saved: the checkpoint is the last episode the log printed
+    assert any(line.startswith("stop requested: the episode set in progress ends") for line in lines)
+    episode = torch.load(run_dir / "latest.pt", weights_only=True)["progress"]["episode"]
+    assert lines[-2] == f"stopped at episode {episode}, its checkpoint saved"
+    assert [line for line in lines if line.startswith("ep ")][-1].split("|")[0] == f"ep {episode:6d} "
+
+
+def _signal_during_the_second_set(trainer: Trainer, signals: int) -> None:
+    """``signals`` SIGTERMs to this process halfway through the trainer's second episode set."""
+    import os
+    import signal
+
+    step, calls = trainer.envs.step, []
+
+    def step_and_signal(actions):
+        calls.append(1)
+        if len(calls) == trainer.cfg.episode_steps * 3 // 2:
+            for _ in range(signals):
+                os.kill(os.getpid(), signal.SIGTERM)
+        return step(actions)
+
+    trainer.envs.step = step_and_signal
+
+
+def test_a_stop_signal_ends_training_after_the_set_in_progress_and_the_run_resumes_exactly(tmp_path):
+    """The set under way when the signal comes is finished and saved (here the only checkpoint,
+    as checkpoint_every is larger than the run); resumed, the run ends with the weights of one
+    never stopped."""
+    cfg = make_config("cpu", **TINY, checkpoint_every=100)
+    lines = []
+    stopped = Trainer(cfg, tmp_path / "parts", resume=False, log=lines.append)
+    _signal_during_the_second_set(stopped, signals=1)
+    with pytest.raises(KeyboardInterrupt):
+        stopped.train(episodes=5)
+    assert stopped.episode == 2 and lines[-1] == "stopped at episode 2, its checkpoint saved"
+    resumed = Trainer(cfg, tmp_path / "parts", resume=True, log=lambda *_: None)
+    assert resumed.episode == 2
+    resumed.train(episodes=1)
+    whole = Trainer(cfg, tmp_path / "whole", resume=False, log=lambda *_: None)
+    whole.train(episodes=3)
+    for key, value in whole.net.state_dict().items():
+        assert torch.equal(value, resumed.net.state_dict()[key]), key
+
+
+def test_a_second_stop_signal_interrupts_training_at_once(tmp_path):
+    cfg = make_config("cpu", **TINY, checkpoint_every=100)
+    trainer = Trainer(cfg, tmp_path, resume=False, log=lambda *_: None)
+    _signal_during_the_second_set(trainer, signals=2)
+    with pytest.raises(KeyboardInterrupt):
+        trainer.train(episodes=5)
+    assert trainer.episode == 1 and not (tmp_path / "latest.pt").exists()
 
 
 def test_overrides_are_typed_and_checked():

@@ -244,6 +244,37 @@ def test_a_recipe_runs_every_stage_then_chooses_on_validation_and_resumes_after_
 SMOKE_TEXT = (ROOT / "recipes" / "smoke.toml").read_text()
 
 
+def test_sigterm_stops_a_recipe_after_its_episode_set_with_the_checkpoint_saved(tmp_path):
+    """`kill` on `formic train --recipe` is Ctrl-C: the stage's set in progress ends and is saved,
+    the command exits 130 with the line that resumes it, and the rerun goes on from there."""
+    import signal
+
+    run_dir = tmp_path / "run"
+    command = [sys.executable, "-m", "formic_cli.main", "train", "--recipe", "smoke", "--seed", "1",
+               "--run-dir", str(run_dir)]
+    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        lines = []
+        for line in process.stdout:
+            lines.append(line.rstrip("\n"))
+            if line.startswith("first: ep "):
+                process.send_signal(signal.SIGTERM)
+                break
+        lines += process.communicate(timeout=120)[0].splitlines()
+    finally:
+        process.kill()
+        process.wait(timeout=30)
+    assert process.returncode == 130, "\n".join(lines[-20:])
+    assert lines[-1] == "interrupted: rerun the same command to resume" and "Traceback" not in "\n".join(lines)
+    episode = read_checkpoint(run_dir / "first" / "latest.pt")["progress"]["episode"]
+    assert lines[-2].startswith(f"first: stopped at episode {episode}, its checkpoint saved | recipe {episode}/12 ")
+    resumed = subprocess.run(command, capture_output=True, text=True, timeout=300)
+    assert resumed.returncode == 0, resumed.stdout[-2000:] + resumed.stderr[-2000:]
+    expected = ("stage 1/3 first: complete (4 episodes), skipped" if episode == 4
+                else "stage 1/3 first: 4 episodes from scratch, resuming at episode 2")
+    assert resumed.stdout.startswith(expected)
+
+
 @pytest.mark.parametrize("old, new, message", [
     ("[[stage]]", "[[stage]", "not valid TOML"),
     ("valid_coef = 0.0", "valid_coeff = 0.0", "stage 'last'.set.valid_coeff is not a training setting"),

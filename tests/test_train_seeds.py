@@ -15,7 +15,7 @@ ROOT = Path(__file__).resolve().parents[1]
 # the real CLI for training; an evaluation is only recorded (hours of test episodes otherwise)
 RECORDER = """#!/bin/sh
 printf '%s\\n' "$*" >> "$CALLS"
-[ "$1" = eval ] && exit 0
+[ "$1" = eval ] && exit "${EVAL_STATUS:-0}"
 exec "$PYTHON" -m formic_cli.main "$@"
 """
 
@@ -27,9 +27,9 @@ def test_seeds_are_trained_trimmed_and_evaluated_and_a_held_seed_is_skipped(tmp_
     runs, evals, calls = tmp_path / "runs", tmp_path / "evals", tmp_path / "calls"
     env = {**os.environ, "FORMIC": str(recorder), "CALLS": str(calls), "PYTHON": sys.executable}
 
-    def seeds(which: str) -> subprocess.CompletedProcess:
+    def seeds(which: str, **extra: str) -> subprocess.CompletedProcess:
         return subprocess.run([str(ROOT / "scripts" / "train_seeds.sh"), "smoke", which, str(runs), str(evals)],
-                              capture_output=True, text=True, timeout=300, env=env, cwd=tmp_path)
+                              capture_output=True, text=True, timeout=300, env={**env, **extra}, cwd=tmp_path)
 
     with held_directory(runs / "seed2"):  # another process trains seed 2
         done = seeds("1-2")
@@ -58,3 +58,14 @@ def test_seeds_are_trained_trimmed_and_evaluated_and_a_held_seed_is_skipped(tmp_
     assert again.returncode == 0, again.stderr
     assert (runs / "seed1.log").read_text().splitlines()[-1].endswith("the run is finished")
     assert sorted(p.name for p in (runs / "seed1").glob("**/*.pt")) == ["model.pt"]
+    # a stopped command (Ctrl-C: 130, here the evaluation) stops the script with the line that goes on
+    stopped = seeds("1-2", EVAL_STATUS="130")
+    assert (stopped.returncode, stopped.stderr) == (
+        130, f"seed 1: stopped (see {runs}/seed1.log): rerun the same command to go on\n"), stopped.stderr
+    assert not (runs / "seed2" / "recipe.json").exists()  # seed 2 never started
+    # trained and tested (its evaluation sealed): passed over, its log untouched
+    (evals / "seed1" / "episodes.jsonl.gz").write_bytes(b"")
+    log = (runs / "seed1.log").read_text()
+    tested = seeds("1")
+    assert (tested.returncode, tested.stdout) == (0, f"seed 1: trained and tested ({evals}/seed1), skipped\n")
+    assert (runs / "seed1.log").read_text() == log

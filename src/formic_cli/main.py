@@ -262,9 +262,14 @@ def train(ctx, preset, run_dir, episodes, minutes, fresh, overrides, export, rec
           threads, status) -> None:
     """Train a policy; checkpoints to RUN_DIR/latest.pt, TensorBoard logs to RUN_DIR/tb.
 
-    Resumes from RUN_DIR/latest.pt when it exists. `--episodes 0 --export FILE` only exports."""
+    Resumes from RUN_DIR/latest.pt when it exists. Ctrl-C (or SIGTERM) stops after the episode
+    set in progress and saves the checkpoint; a second one stops at once. `--episodes 0 --export
+    FILE` only exports."""
+    from formic_runtime.signals import STOP_SIGNALS, FirstStopInterrupts, handling
+
     if recipe is not None or seed is not None or switch or scale != 1 or threads is not None or status:
-        _train_recipe(ctx, recipe, seed, switch, scale, threads, Path(run_dir), status)
+        with handling(STOP_SIGNALS, FirstStopInterrupts()):  # training itself stops between episode sets
+            _train_recipe(ctx, recipe, seed, switch, scale, threads, Path(run_dir), status)
         return
     from formic_trainer.config import make_config, parse_overrides
     from formic_trainer.train import Trainer, export_model
@@ -273,7 +278,7 @@ def train(ctx, preset, run_dir, episodes, minutes, fresh, overrides, export, rec
         cfg = make_config(preset, **parse_overrides(overrides))
     if episodes != 0:
         resume = f"interrupted: rerun the same command to resume from {Path(run_dir) / 'latest.pt'}"
-        with click_errors(interrupted=resume):
+        with click_errors(interrupted=resume), handling(STOP_SIGNALS, FirstStopInterrupts()):
             Trainer(cfg, Path(run_dir), resume=not fresh, log=click.echo).train(episodes=episodes, minutes=minutes)
     if export:
         export_model(Path(run_dir) / "latest.pt", Path(export))

@@ -3,7 +3,9 @@
 Where a stop must finish what it started (a launcher stopping its children, a recorder closing
 its file, a trainer saving its checkpoint) the first stop signal counts and later ones (a second
 Ctrl-C, ``timeout``'s SIGTERM to the group, a closing terminal's SIGHUP) are ignored while it
-stops. Every handler installed here is installed for a block (:func:`handling`) and the previous
+stops. A loop whose steps take minutes to end whole (an in-process training's episode set) is the
+exception (:class:`StopBetweenSteps`): a second stop there interrupts at once, as the user asked
+twice. Every handler installed here is installed for a block (:func:`handling`) and the previous
 one comes back when the block ends. Signal handlers exist only in the main thread: elsewhere the
 blocks change nothing. No ROS here: the launch layer and the ROS-free commands (``formic eval``)
 use it too; the ROS executor that holds a signal back until its callback ends is
@@ -11,6 +13,7 @@ use it too; the ROS executor that holds a signal back until its callback ends is
 
 from __future__ import annotations
 
+import os
 import signal
 import threading
 from collections.abc import Callable, Iterator
@@ -52,6 +55,24 @@ class FirstStopInterrupts:
         if not self.stopping:
             self.stopping = True
             raise KeyboardInterrupt(f"signal {signum}")
+
+
+class StopBetweenSteps:
+    """A handler for a loop of long steps: the first stop signal asks it to stop after the step in
+    progress (:attr:`requested`; ``notice`` goes to stderr at once, so that the user knows the
+    signal was heard), a second one raises KeyboardInterrupt, losing that step."""
+
+    def __init__(self, notice: str):
+        self.notice, self.requested = notice, False
+
+    def __call__(self, signum: int, _frame: FrameType | None) -> None:
+        if self.requested:
+            raise KeyboardInterrupt(f"signal {signum}")
+        self.requested = True
+        try:  # unbuffered: the handler may run inside a print to the same stream
+            os.write(2, f"{self.notice}\n".encode())
+        except OSError:
+            pass
 
 
 @contextmanager

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from formic_agent.checkpoint import load_network, save_checkpoint
+from formic_runtime.signals import STOP_SIGNALS, StopBetweenSteps, handling
 
 from .actor import Actor, filter_probability
 from .config import TrainConfig
@@ -70,27 +71,41 @@ class Trainer:
             cfg.schedule_end is not None and learner.schedule.episode >= cfg.schedule_end)
 
     def train(self, episodes: int | None = None, minutes: float | None = None) -> None:
-        """Train until the run has ended, or for ``episodes`` more or ``minutes``, whichever comes first."""
+        """Train until the run has ended, or for ``episodes`` more or ``minutes``, whichever comes
+        first. A stop signal (Ctrl-C, SIGTERM, SIGHUP) ends it after the episode set in progress,
+        its checkpoint saved, with KeyboardInterrupt: nothing is lost, and the run resumes as if
+        never stopped; a second stop interrupts at once (back to the last checkpoint)."""
         learner = self.learner
         target = self.cfg.total_episodes if episodes is None else learner.episode + episodes
         deadline = None if minutes is None else time.time() + 60 * minutes
-        while learner.episode < target and not self.ended and (deadline is None or time.time() < deadline):
-            stats = self.run_episode_set()
-            sps = learner.env_steps / max(learner.seconds, 1e-9)
-            per_env = " ".join(f"{stats[f'food_env{i}']:.0f}" for i in range(len(self.cfg.teams)))
-            held = " held" if learner.schedule.held else ""
-            clock = f" sched {stats['schedule_episode']:.0f}{held}" if self.cfg.anneal_hold is not None else ""
-            imitation = (f"imit {stats['imitation']:.3f} agree {stats['expert_agreement']:.2f} | "
-                         if "imitation" in stats else "")
-            self.log(
-                f"ep {learner.episode:6d} | food {stats['food_mean']:6.1f} ({per_env}) | "
-                f"loss {stats['loss']:.3f} pi {stats['policy']:.3f} v {stats['value']:.3f} "
-                f"ent {stats['entropy']:.3f} valid {stats['valid_accuracy']:.3f} act-ok {stats['valid_rate']:.2f} | "
-                f"kl {stats['approx_kl']:.4f} upd {stats['update_fraction']:.2f} | "
-                f"{imitation}I_h {stats['highway_intensity']:.2f}{clock} | {sps:,.0f} agent-steps/s | "
-                f"{learner.seconds / 60:.1f} min ({learner.cpu_seconds / 60:.1f} CPU)"
-            )
-        self.close()
+        stop = StopBetweenSteps(f"stop requested: the episode set in progress ends, then {learner.run_dir / 'latest.pt'} "
+                                "is saved (stop again to quit at once, back to the last checkpoint)")
+        with handling(STOP_SIGNALS, stop):
+            while (learner.episode < target and not self.ended and not stop.requested
+                   and (deadline is None or time.time() < deadline)):
+                self.log(self.progress_line(self.run_episode_set()))
+            self.close()
+        if stop.requested:
+            self.log(f"stopped at episode {learner.episode}, its checkpoint saved")
+            raise KeyboardInterrupt("stopped between episode sets")
+
+    def progress_line(self, stats: dict[str, float]) -> str:
+        """The log line of an episode set: food per world, losses, the update's size, speed."""
+        learner = self.learner
+        sps = learner.env_steps / max(learner.seconds, 1e-9)
+        per_env = " ".join(f"{stats[f'food_env{i}']:.0f}" for i in range(len(self.cfg.teams)))
+        held = " held" if learner.schedule.held else ""
+        clock = f" sched {stats['schedule_episode']:.0f}{held}" if self.cfg.anneal_hold is not None else ""
+        imitation = (f"imit {stats['imitation']:.3f} agree {stats['expert_agreement']:.2f} | "
+                     if "imitation" in stats else "")
+        return (
+            f"ep {learner.episode:6d} | food {stats['food_mean']:6.1f} ({per_env}) | "
+            f"loss {stats['loss']:.3f} pi {stats['policy']:.3f} v {stats['value']:.3f} "
+            f"ent {stats['entropy']:.3f} valid {stats['valid_accuracy']:.3f} act-ok {stats['valid_rate']:.2f} | "
+            f"kl {stats['approx_kl']:.4f} upd {stats['update_fraction']:.2f} | "
+            f"{imitation}I_h {stats['highway_intensity']:.2f}{clock} | {sps:,.0f} agent-steps/s | "
+            f"{learner.seconds / 60:.1f} min ({learner.cpu_seconds / 60:.1f} CPU)"
+        )
 
     def close(self) -> None:
         self.learner.close()
