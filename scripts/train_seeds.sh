@@ -7,13 +7,15 @@
 # process holds is skipped, so two of these side by side share the seeds, one core each; a seed
 # trained and tested (its sealed episodes there) is passed over. Ctrl-C stops the training after its
 # episode set in progress (checkpoint saved) and this script with it (130); after a stop or a kill
-# the same command goes on. EVAL=0 skips the evaluations.
-# Usage: scripts/train_seeds.sh RECIPE SEEDS [RUNS (models/training/recipe-RECIPE)]
+# the same command goes on. EVAL=0 skips the evaluations. --status first: one line a seed (its
+# CPU-hours spent and left or its choice, its test episodes, whether a process holds it), nothing run.
+# Usage: scripts/train_seeds.sh [--status] RECIPE SEEDS [RUNS (models/training/recipe-RECIPE)]
 # [EVALS (eval/recipe-RECIPE)]. FORMIC may name another way to call the CLI (e.g. one pinned to
 # a worktree: "env PYTHONPATH=/work/recipe-tree/src .venv/bin/python -m formic_cli.main").
 set -euo pipefail
-usage() { sed -n '2,13p' "$0"; }
-case "${1:-}" in -h|--help) usage; exit 0 ;; esac
+usage() { sed -n '2,15p' "$0"; }
+only_status=0
+case "${1:-}" in -h|--help) usage; exit 0 ;; --status) only_status=1; shift ;; esac
 [ $# -ge 2 ] || { usage >&2; exit 2; }
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 RECIPE=$1 SEEDS=$2
@@ -25,10 +27,29 @@ case "$SEEDS" in
 esac
 held() { [ -e "$1/.lock" ] && ! flock -n "$1/.lock" true; }
 stopped() { echo "seed $seed: stopped (see $1): rerun the same command to go on" >&2; exit 130; }
+tested() { [ -e "$run/selection.json" ] && [ -e "$evals/episodes.jsonl.gz" ] && [ ! -e "$evals/episodes.jsonl" ]; }
+status() {
+  local training="not started" testing lines stage
+  if [ -e "$run/recipe.json" ]; then  # the stage in progress, if any, and the CPU-hours or the choice
+    lines=$($FORMIC train --recipe "$RECIPE" --seed "$seed" --run-dir "$run" --status)
+    stage=$(grep -m 1 ": in progress" <<<"$lines" || true)
+    training="${stage:+$stage; }$(tail -n 1 <<<"$lines")"
+  fi
+  if held "$run"; then training="$training (training now)"; fi
+  if tested; then testing="$(gzip -cd "$evals/episodes.jsonl.gz" | wc -l) episodes, sealed"
+  elif [ -e "$evals/episodes.jsonl" ]; then testing="$(wc -l <"$evals/episodes.jsonl") episodes so far"
+  else testing="not started"; fi
+  if held "$evals"; then testing="$testing (playing now)"; fi
+  echo "seed $seed: $training | test: $testing"
+}
+if [ $only_status = 1 ]; then
+  for seed in $seeds; do run=$RUNS/seed$seed evals=$EVALS/seed$seed; status; done
+  exit 0
+fi
 mkdir -p "$RUNS" "$EVALS"
 for seed in $seeds; do
   run=$RUNS/seed$seed evals=$EVALS/seed$seed
-  if [ -e "$run/selection.json" ] && [ -e "$evals/episodes.jsonl.gz" ] && [ ! -e "$evals/episodes.jsonl" ]; then
+  if tested; then
     echo "seed $seed: trained and tested ($evals), skipped"; continue
   fi
   if held "$run"; then echo "seed $seed: another process is training it, skipped"; continue; fi

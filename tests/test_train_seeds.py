@@ -3,6 +3,8 @@ after another; a seed another process holds is left to it; a rerun finds a finis
 
 from __future__ import annotations
 
+import gzip
+import json
 import os
 import subprocess
 import sys
@@ -64,8 +66,24 @@ def test_seeds_are_trained_trimmed_and_evaluated_and_a_held_seed_is_skipped(tmp_
         130, f"seed 1: stopped (see {runs}/seed1.log): rerun the same command to go on\n"), stopped.stderr
     assert not (runs / "seed2" / "recipe.json").exists()  # seed 2 never started
     # trained and tested (its evaluation sealed): passed over, its log untouched
-    (evals / "seed1" / "episodes.jsonl.gz").write_bytes(b"")
+    with gzip.open(evals / "seed1" / "episodes.jsonl.gz", "wt") as sealed:
+        sealed.write("{}\n" * 3)
     log = (runs / "seed1.log").read_text()
     tested = seeds("1")
     assert (tested.returncode, tested.stdout) == (0, f"seed 1: trained and tested ({evals}/seed1), skipped\n")
     assert (runs / "seed1.log").read_text() == log
+    # --status: a line a seed, nothing run
+    (evals / "seed2").mkdir()
+    (evals / "seed2" / "episodes.jsonl").write_text("{}\n" * 2)
+    selection = json.loads((runs / "seed1" / "selection.json").read_text())
+    chosen = selection["chosen"]
+    with held_directory(runs / "seed2"):
+        status = subprocess.run([str(ROOT / "scripts" / "train_seeds.sh"), "--status", "smoke", "1-2", str(runs),
+                                 str(evals)], capture_output=True, text=True, timeout=120, env=env, cwd=tmp_path)
+    assert status.returncode == 0, status.stderr
+    first, second = status.stdout.splitlines()
+    assert first.startswith(f"seed 1: finished: model.pt = {chosen} (validation food "
+                            f"{selection['candidates'][chosen]['food_mean']:.1f}); ")
+    assert first.endswith(" CPU-h spent | test: 3 episodes, sealed")
+    assert second == "seed 2: not started (training now) | test: 2 episodes so far"
+    assert (runs / "seed1.log").read_text() == log and not (runs / "seed2" / "recipe.json").exists()
