@@ -7,8 +7,9 @@
 # process holds is skipped, so two of these side by side share the seeds, one core each; a seed
 # trained and tested (its sealed episodes there) is passed over. Ctrl-C stops the training after its
 # episode set in progress (checkpoint saved) and this script with it (130); after a stop or a kill
-# the same command goes on. EVAL=0 skips the evaluations. --status first: one line a seed (its
-# CPU-hours spent and left or its choice, its test episodes, whether a process holds it), nothing run.
+# the same command goes on. EVAL=0 skips the evaluations. --status first: one line a seed (what it
+# trains or validates, CPU-hours spent and left or its choice, its test episodes, whether a process
+# holds it), nothing run.
 # Usage: scripts/train_seeds.sh [--status] RECIPE SEEDS [RUNS (models/training/recipe-RECIPE)]
 # [EVALS (eval/recipe-RECIPE)]. FORMIC may name another way to call the CLI (e.g. one pinned to
 # a worktree: "env PYTHONPATH=/work/recipe-tree/src .venv/bin/python -m formic_cli.main").
@@ -30,10 +31,13 @@ stopped() { echo "seed $seed: stopped (see $1): rerun the same command to go on"
 tested() { [ -e "$run/selection.json" ] && [ -e "$evals/episodes.jsonl.gz" ] && [ ! -e "$evals/episodes.jsonl" ]; }
 status() {
   local training="not started" testing lines stage
-  if [ -e "$run/recipe.json" ]; then  # the stage in progress, if any, and the CPU-hours or the choice
+  if [ -e "$run/recipe.json" ]; then  # the stage or validation in progress, and the CPU-hours or the choice
     lines=$($FORMIC train --recipe "$RECIPE" --seed "$seed" --run-dir "$run" --status)
-    stage=$(grep -m 1 ": in progress" <<<"$lines" || true)
-    training="${stage:+$stage; }$(tail -n 1 <<<"$lines")"
+    training=$(tail -n 1 <<<"$lines")
+    if [[ $training != finished:* ]]; then
+      stage=$(grep -m 1 -e ": in progress" -e "^validation: .* episodes$" <<<"$lines" || true)
+      training="${stage:+$stage; }$training"
+    fi
   fi
   if held "$run"; then training="$training (training now)"; fi
   if tested; then testing="$(gzip -cd "$evals/episodes.jsonl.gz" | wc -l) episodes, sealed"
