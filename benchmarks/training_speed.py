@@ -10,7 +10,8 @@ network's forward pass and sampling), the worlds (observations, frames, stepping
 
     .venv/bin/python benchmarks/training_speed.py --threads 2 --steps 128
 
-``--stage crowd --switch fov21`` times another stage, with one of the recipe's switches.
+``--stage crowd --switch fov21`` times another stage, with one of the recipe's switches;
+``--recipe paper-v6`` another recipe; ``--set update_precision=bf16`` changes a setting on top.
 ``--src DIR`` times another revision's ``src/`` with the same settings (what
 ``benchmarks/compare_revisions.py --benches training`` does). Run it on a quiet machine.
 """
@@ -30,17 +31,22 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def recipe_settings(stage: str | None, switch: str = "") -> dict:
+def recipe_settings(stage: str | None, switch: str = "", recipe_name: str = "paper",
+                    overrides: tuple[str, ...] = ()) -> dict:
     """A recipe stage's full training configuration (this tree's recipe, with ``switch`` if
-    given), as a plain dict, every setting that is off spelled as before None meant off (0, "",
-    -1): a revision from before then (``--src``) reads it too."""
-    from formic_trainer.config import OFF_SPELLINGS
+    given and ``overrides`` (``KEY=VALUE``, as `formic train --set`) on top), as a plain dict,
+    every setting that is off spelled as before None meant off (0, "", -1): a revision from
+    before then (``--src``) reads it too."""
+    import dataclasses
+
+    from formic_trainer.config import OFF_SPELLINGS, parse_overrides
     from formic_trainer.recipes.definition import stage_config
     from formic_trainer.recipes.files import load_recipe
 
-    recipe = load_recipe("paper", switch)
+    recipe = load_recipe(recipe_name, switch)
     index = len(recipe.stages) - 1 if stage is None else [s.name for s in recipe.stages].index(stage)
     cfg = stage_config(recipe, index, Path(tempfile.gettempdir()), seed=1)
+    cfg = dataclasses.replace(cfg, **parse_overrides(list(overrides)))
     return {key: OFF_SPELLINGS[key] if value is None and key in OFF_SPELLINGS else value
             for key, value in {**cfg.to_dict(), "init_weights": None}.items()}
 
@@ -103,19 +109,23 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=128, help="episode steps timed (one rollout per 128)")
     parser.add_argument("--stage", help="recipe stage whose settings to use (default: the last)")
     parser.add_argument("--switch", default="", help="one of the recipe's switches laid over it (e.g. fov21)")
+    parser.add_argument("--recipe", default="paper", help="the recipe whose stage to time (default: paper)")
+    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                        help="a training setting over the stage's, e.g. update_precision=bf16 (repeatable)")
     parser.add_argument("--src", type=Path, help="another revision's src/ to time with these settings")
     parser.add_argument("--settings", type=Path, help=argparse.SUPPRESS)  # the child's side of --src
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     args = parser.parse_args()
     if args.src is not None:  # the other revision runs in its own interpreter, on these settings
         with tempfile.NamedTemporaryFile("w", suffix=".json") as f:
-            json.dump(recipe_settings(args.stage, args.switch), f)
+            json.dump(recipe_settings(args.stage, args.switch, args.recipe, tuple(args.overrides)), f)
             f.flush()
             env = {**os.environ, "PYTHONPATH": str(args.src)}
             cmd = [sys.executable, __file__, "--settings", f.name, "--threads", str(args.threads),
                    "--steps", str(args.steps), "--json"]
             sys.exit(subprocess.run(cmd, env=env).returncode)
-    settings = json.loads(args.settings.read_text()) if args.settings else recipe_settings(args.stage, args.switch)
+    settings = (json.loads(args.settings.read_text()) if args.settings
+                else recipe_settings(args.stage, args.switch, args.recipe, tuple(args.overrides)))
     result = measure(settings, args.threads, args.steps)
     if args.json:
         print(json.dumps(result))
