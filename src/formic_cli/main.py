@@ -265,12 +265,10 @@ def train(ctx, preset, run_dir, episodes, minutes, fresh, overrides, export, rec
     Resumes from RUN_DIR/latest.pt when it exists. Ctrl-C (or SIGTERM) stops after the episode
     set in progress and saves the checkpoint; a second one stops at once. `--episodes 0 --export
     FILE` only exports."""
-    from formic_runtime.signals import STOP_SIGNALS, FirstStopInterrupts, handling
-
     if recipe is not None or seed is not None or switch or scale != 1 or threads is not None or status:
-        with handling(STOP_SIGNALS, FirstStopInterrupts()):  # training itself stops between episode sets
-            _train_recipe(ctx, recipe, seed, switch, scale, threads, Path(run_dir), status)
+        _train_recipe(ctx, recipe, seed, switch, scale, threads, Path(run_dir), status)
         return
+    from formic_runtime.signals import STOP_SIGNALS, FirstStopInterrupts, handling
     from formic_trainer.config import make_config, parse_overrides
     from formic_trainer.train import Trainer, export_model
 
@@ -290,6 +288,7 @@ def _train_recipe(ctx: click.Context, recipe: str | None, seed: int | None, swit
     """`formic train --recipe`: the recipe sets every stage, so the single-run options are refused."""
     from click.core import ParameterSource
 
+    from formic_runtime.signals import STOP_SIGNALS, FirstStopInterrupts, handling
     from formic_trainer.recipes.files import load_recipe
     from formic_trainer.recipes.run import run_recipe, run_status
 
@@ -304,7 +303,8 @@ def _train_recipe(ctx: click.Context, recipe: str | None, seed: int | None, swit
         with click_errors(TypeError, ValueError):
             click.echo("\n".join(run_status(load_recipe(recipe, switch, scale), run_dir, seed)))
         return
-    with click_errors(TypeError, ValueError, interrupted="interrupted: rerun the same command to resume"):
+    with (click_errors(TypeError, ValueError, interrupted="interrupted: rerun the same command to resume"),
+          handling(STOP_SIGNALS, FirstStopInterrupts())):  # SIGTERM as Ctrl-C; a stage stops between episode sets
         run_recipe(load_recipe(recipe, switch, scale), run_dir, seed, echo=click.echo, threads=threads)
 
 
