@@ -19,10 +19,21 @@ ROOT = Path(__file__).resolve().parents[1]
 _domains = random.Random(os.getpid() ^ int(time.time()))
 
 
+def _worker_domains() -> range:
+    """This pytest process's share of domains 120-219 (away from the default 0 and from ids people
+    pick by hand): all of it, or under pytest-xdist (``-n N``) the N-th part that worker N owns,
+    so that tests running side by side never meet in one domain."""
+    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+    worker = int(os.environ.get("PYTEST_XDIST_WORKER", "gw0").removeprefix("gw"))
+    share = 100 // workers
+    return range(120 + worker * share, 120 + (worker + 1) * share)
+
+
 def fresh_domain_id() -> int:
-    """A ROS domain for one test (random in 120-219, away from the default 0 and from
-    ids people pick by hand), so concurrent test runs on this machine do not mix."""
-    return _domains.randrange(120, 220)
+    """A ROS domain for one test, random in this worker's share, so concurrent test runs on
+    this machine do not mix."""
+    domains = _worker_domains()
+    return _domains.randrange(domains.start, domains.stop)
 
 
 def ros_test_environment(domain_id: int) -> dict[str, str]:

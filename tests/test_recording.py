@@ -27,6 +27,7 @@ from formic_record.bag import BagWriter  # noqa: E402
 from formic_record.reading import KEPT_SUFFIX, Recording, repair_recording  # noqa: E402
 from formic_record.replay import read_episodes, render_recording, resimulate  # noqa: E402
 from formic_record.verify import verify_recording  # noqa: E402
+from ros_helpers import fresh_domain_id  # noqa: E402
 
 pytestmark = pytest.mark.filterwarnings("ignore:module 'sre_:DeprecationWarning")
 
@@ -34,7 +35,7 @@ ROOT = Path(__file__).resolve().parents[1]
 PYTHON = sys.executable
 STEPS = 120
 DISCOVERED_TOPIC = "/formic/agent_0/action"  # not a world topic: the recorder must find it in the graph
-DOMAIN_ID = 150 + os.getpid() % 60
+DOMAIN_ID = fresh_domain_id()
 
 # A stand-in for the world node: a real World episode on the conventional topics.
 PUBLISHER = r'''

@@ -42,7 +42,7 @@ from ros_helpers import fresh_domain_id  # noqa: E402
 pytestmark = pytest.mark.filterwarnings("ignore::UserWarning", "ignore:module 'sre_:DeprecationWarning")
 
 ROOT = Path(__file__).resolve().parents[1]
-DOMAIN_ID = 100 + os.getpid() % 40
+DOMAIN_ID = fresh_domain_id()
 STEPS = 8
 UPDATE_FIELDS = {"epochs": 2, "minibatches": 2, "rollout_steps": STEPS, "episode_steps": STEPS}
 CFG = make_config("cpu", teams=(4,), world_sizes=((16, 16),), **UPDATE_FIELDS)
