@@ -32,8 +32,7 @@ def _worker_domains() -> range:
 def fresh_domain_id() -> int:
     """A ROS domain for one test, random in this worker's share, so concurrent test runs on
     this machine do not mix."""
-    domains = _worker_domains()
-    return _domains.randrange(domains.start, domains.stop)
+    return _domains.choice(_worker_domains())
 
 
 def ros_test_environment(domain_id: int) -> dict[str, str]:
