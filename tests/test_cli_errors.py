@@ -243,7 +243,41 @@ def test_exporting_from_a_run_directory_without_a_checkpoint_is_one_line(tmp_pat
 def test_a_non_positive_episode_length_is_a_usage_error(command, steps):
     result = formic(*command, "--steps", steps)
     assert result.exit_code == 2 and result.stdout == ""
-    assert result.stderr.endswith(f"Error: Invalid value for '--steps': {steps} is not in the range x>=1.\n")
+    assert result.stderr.endswith(f"Error: Invalid value for '--steps': {steps} is not in the range 1<=x<=1000000.\n")
+
+
+OUT_OF_BOUNDS = [  # (command, the message after "Error: Invalid value for ")
+    (["sim", "--size", "100000"], "'--size': 100000 is not in the range 12<=x<=2048."),
+    (["sim", "--size", "5"], "'--size': 5 is not in the range 12<=x<=2048."),
+    (["sim", "--agents", "70000"], "'--agents': 70000 is not in the range 1<=x<=65536."),
+    (["sim", "--view-size", "4"], "'--view-size': 4 is even: the window is centred on its agent (5, 11, 21)"),
+    (["sim", "--view-size", "99"], "'--view-size': 99 is not in the range 3<=x<=63."),
+    (["sim", "--obstacles", "0.5"], "'--obstacles': 0.5 is not in the range 0<=x<0.5."),
+    (["scenarios", "generate", "--size", "9999", "--out", "unused"], "'--size': 9999 is not in the range 12<=x<=2048."),
+    (["eval", "--sizes", "128,100000"], "'--sizes': 100000 is not in the range 12<=x<=2048."),
+    (["eval", "--teams", "16,0"], "'--teams': 0 is not in the range 1<=x<=65536."),
+    (["eval", "--obstacles", "0,0.6"], "'--obstacles': 0.6 is not in the range 0<=x<0.5."),
+    (["bench", "world", "--teams", "16,x"], "'--teams': 'x' is not a valid integer range."),
+    (["bench", "world", "--size", "4096"], "'--size': 4096 is not in the range 12<=x<=2048."),
+    (["bench", "decide", "--teams", "0"], "'--teams': 0 is not in the range 1<=x<=65536."),
+    (["bench", "decide", "--threads", "-1"], "'--threads': -1 is not in the range x>=0."),
+    (["bench", "policy", "--network", "huge"],
+     "'--network': 'huge' is not one of 'cpu', 'cpu-feedback', 'cpu-nest', 'paper'."),
+    (["bench", "policy", "--batch", "0"], "'--batch': 0 is not in the range x>=1."),
+    (["bench", "ros", "--agents", "16,,abc"], "'--agents': 'abc' is not a valid integer range."),
+    (["bench", "ros", "--transports", "batched,udp"],
+     "'--transports': unknown udp; choose from per-agent, batched"),
+    (["bench", "ros", "--steps", "1"], "'--steps': 1 is not in the range 2<=x<=1000000."),
+]
+
+
+@pytest.mark.parametrize("command, message", OUT_OF_BOUNDS, ids=lambda v: " ".join(v) if isinstance(v, list) else "")
+def test_a_value_out_of_the_worlds_bounds_is_a_usage_error_naming_its_option(command, message):
+    """Before anything runs (no world, no network, no ROS process): the option the user typed,
+    not the configuration field behind it."""
+    result = formic(*command)
+    assert result.exit_code == 2 and result.stdout == ""
+    assert result.stderr.endswith(f"Error: Invalid value for {message}\n")
 
 
 def test_stored_scenario_sets_have_the_episodes_eval_runs(tmp_path):
@@ -253,7 +287,7 @@ def test_stored_scenario_sets_have_the_episodes_eval_runs(tmp_path):
     assert path.name == f"s16_n4_o0_infinite_w0_t{PAPER_STEPS}_seed0.json" and PAPER_STEPS == 1024
     assert Scenario.load(path).config.episode_steps == PAPER_STEPS
     help_text = " ".join(formic("scenarios", "generate", "--help").output.split())
-    assert "the paper's test episodes, as `formic eval` runs them" in help_text and "[default: 1024; x>=1]" in help_text
+    assert "the paper's test episodes, as `formic eval` runs them" in help_text and "[default: 1024; 1<=x<=1000000]" in help_text
 
 
 INTERRUPTED_IN_A_TIMER = """

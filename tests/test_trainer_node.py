@@ -138,6 +138,31 @@ def test_trainer_node_learns_as_the_learner_and_drops_stale_or_malformed_rollout
         rclpy.shutdown()
 
 
+def test_a_rollback_of_the_fall_guard_reaches_the_hosts_with_the_next_weights(experience, tmp_path):
+    """The second episode's food falls below half the first's: the guard rolls back to the
+    first update's weights (best.pt), and version 2 goes out as those weights, not as the
+    update it discarded (hosts would act a whole rollout on weights the learner no longer has)."""
+    import rclpy
+
+    first, second = (dataclasses.replace(rollout, food=food) for rollout, food in zip(experience["chunks"], (2.0, 0.5)))
+    cfg = dataclasses.replace(CFG, guard_drop=0.5, guard_window=1)
+    rclpy.init(domain_id=DOMAIN_ID)
+    try:
+        node = TrainerNode(Learner(cfg, tmp_path / "run", resume=False, log=quiet), max_lag=1)
+        published = []
+        publish = node.weights_pub.publish
+        node.weights_pub.publish = lambda msg: (published.append(msg), publish(msg))
+        node.learn_from(first, 0)
+        node.learn_from(second, 1)
+        assert [msg.version for msg in published] == [1, 2] and node.learner.guard.events == 1
+        for msg in published:  # version 1: the first update; version 2: rolled back to it
+            assert_same_weights(read_checkpoint(bytes(msg.data))["state_dict"], experience["versions"][1])
+        node.learner.close()
+        node.destroy_node()
+    finally:
+        rclpy.shutdown()
+
+
 def test_trainer_node_broadcasts_the_in_process_update(experience, monkeypatch):
     import rclpy
     from rclpy.executors import SingleThreadedExecutor

@@ -9,27 +9,12 @@ import click
 
 from formic_world.config import PHEROMONE_VARIANTS
 
-from .options import json_option
+from .options import EPISODE_STEPS, OBSTACLES, SIDE, TEAM, comma_list, json_option
 from .summary import click_errors, emit
 
 DEFAULT_ALGORITHMS = "formic,planner,csaf,csaf11,cardinality"
 DEFAULT_SIZES, DEFAULT_TEAMS, DEFAULT_OBSTACLES = "128", "16,32,64,128", "0,0.05"
 DEFAULT_ENVS = "infinite,finite,wipeout"
-
-
-def _split(text: str, kind, option: str, choices=None) -> list:
-    """The distinct values of a comma list option, each one of ``choices`` when given."""
-    try:
-        values = list(dict.fromkeys(kind(v.strip()) for v in text.split(",") if v.strip()))
-    except ValueError as exc:
-        raise click.BadParameter(f"{text!r}: {exc}", param_hint=option) from exc
-    if not values:
-        raise click.BadParameter("empty list", param_hint=option)
-    unknown = [v for v in values if choices is not None and v not in choices]
-    if unknown:
-        raise click.BadParameter(f"unknown {', '.join(unknown)}; choose from {', '.join(choices)}",
-                                 param_hint=option)
-    return values
 
 
 @click.command("eval")
@@ -45,7 +30,7 @@ def _split(text: str, kind, option: str, choices=None) -> list:
               help="Scenarios per setting, generated into OUT/scenarios; or a directory of stored "
                    "scenario files (their settings, filtered by the options above when given).")
 @click.option("--seed", default=0, show_default=True, help="Seed the scenario seeds derive from.")
-@click.option("--steps", type=click.IntRange(1), help="Episode length [default: 1024, the paper's test "
+@click.option("--steps", type=EPISODE_STEPS, help="Episode length [default: 1024, the paper's test "
               "length; with a scenario directory, the files' length].")
 @click.option("--out", type=click.Path(file_okay=False), default="out/eval", show_default=True,
               help="Results directory; rerunning the same command there resumes.")
@@ -89,11 +74,11 @@ def eval_command(ctx, algorithms, sizes, teams, obstacles, envs, scenarios, seed
     from formic_runtime.registry import POLICY_NAMES
     from formic_world import ScenarioError
 
-    names = _split(algorithms, str, "--algorithms", POLICY_NAMES)
-    size_list = _split(sizes, int, "--sizes") if sizes else None
-    team_list = _split(teams, int, "--teams") if teams else None
-    obstacle_list = _split(obstacles, float, "--obstacles") if obstacles else None
-    env_list = _split(envs, str, "--env", ENVIRONMENTS) if envs else None
+    names = comma_list(algorithms, str, "--algorithms", POLICY_NAMES)
+    size_list = comma_list(sizes, SIDE, "--sizes") if sizes else None
+    team_list = comma_list(teams, TEAM, "--teams") if teams else None
+    obstacle_list = comma_list(obstacles, OBSTACLES, "--obstacles") if obstacles else None
+    env_list = comma_list(envs, str, "--env", ENVIRONMENTS) if envs else None
 
     options = dataclasses.replace(_policy_options(names, model, greedy, no_pheromones),
                                   pheromone_variant=pheromone_variant)
@@ -103,10 +88,10 @@ def eval_command(ctx, algorithms, sizes, teams, obstacles, envs, scenarios, seed
             count = int(scenarios)
             if count < 1:
                 raise click.BadParameter("needs at least one scenario", param_hint="--scenarios")
-            grid = settings_grid(_split(sizes or DEFAULT_SIZES, int, "--sizes"),
-                                 _split(teams or DEFAULT_TEAMS, int, "--teams"),
-                                 _split(obstacles or DEFAULT_OBSTACLES, float, "--obstacles"),
-                                 _split(envs or DEFAULT_ENVS, str, "--env"), steps or PAPER_STEPS)
+            grid = settings_grid(comma_list(sizes or DEFAULT_SIZES, SIDE, "--sizes"),
+                                 comma_list(teams or DEFAULT_TEAMS, TEAM, "--teams"),
+                                 comma_list(obstacles or DEFAULT_OBSTACLES, OBSTACLES, "--obstacles"),
+                                 comma_list(envs or DEFAULT_ENVS, str, "--env"), steps or PAPER_STEPS)
             source = out_dir / "scenarios"
             matrix = generate_matrix(grid, count, seed, source)
         elif Path(scenarios).is_dir():

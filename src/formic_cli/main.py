@@ -9,11 +9,14 @@ from pathlib import Path
 
 import click
 
+from formic_agent.inputs import NETWORK_PRESETS
 from formic_world.config import TEST_EPISODE_STEPS
 from formic_world.errors import InputError
+from formic_world.limits import MAX_EPISODE_STEPS
 
-from .options import (fresh_option, json_option, live_view_port, model_option, open_live_view, preset_option,
-                      scenario_from, team_options, view_options, world_config_from, world_option_group, world_options)
+from .options import (EPISODE_STEPS, SIDE, TEAM, comma_list, fresh_option, json_option, live_view_port,
+                      model_option, open_live_view, preset_option, scenario_from, team_options, view_options,
+                      world_config_from, world_option_group, world_options)
 from .summary import click_errors, emit, emit_json, print_episode_summary
 
 
@@ -163,16 +166,16 @@ def bench() -> None:
 
 
 @bench.command("world")
-@click.option("--size", default=128, show_default=True)
-@click.option("--teams", default="16,32,64,128", show_default=True)
-@click.option("--steps", type=click.IntRange(min=1), default=512, show_default=True)
+@click.option("--size", type=SIDE, default=128, show_default=True)
+@click.option("--teams", default="16,32,64,128", show_default=True, help="Team sizes, comma list.")
+@click.option("--steps", type=EPISODE_STEPS, default=512, show_default=True)
 @click.option("--seed", default=0, show_default=True)
 @json_option(help=None)
 def bench_world(size, teams, steps, seed, as_json) -> None:
     """Steps/s and agent-steps/s of the core with random valid actions, observations included."""
     from formic_world.bench import bench_world as run
 
-    results = [run(size, int(n), steps, seed) for n in teams.split(",")]
+    results = [run(size, n, steps, seed) for n in comma_list(teams, TEAM, "--teams")]
     if as_json:
         emit_json({"size": size, "steps": steps, "results": results})
         return
@@ -183,10 +186,12 @@ def bench_world(size, teams, steps, seed, as_json) -> None:
 
 
 @bench.command("policy")
-@click.option("--network", default="cpu", show_default=True, help="Network preset (cpu, cpu-nest, paper).")
-@click.option("--batch", default=128, show_default=True, help="Agents per inference batch.")
-@click.option("--threads", default=2, show_default=True)
-@click.option("--episodes", default=1, show_default=True, help="Training episode sets to time end to end.")
+@click.option("--network", type=click.Choice(sorted(NETWORK_PRESETS)), default="cpu", show_default=True,
+              help="Network preset.")
+@click.option("--batch", type=click.IntRange(min=1), default=128, show_default=True, help="Agents per inference batch.")
+@click.option("--threads", type=click.IntRange(min=1), default=2, show_default=True)
+@click.option("--episodes", type=click.IntRange(min=1), default=1, show_default=True,
+              help="Training episode sets to time end to end.")
 @json_option(help=None)
 def bench_policy(network, batch, threads, episodes, as_json) -> None:
     """Inference agent-steps/s and end-to-end training agent-steps/s."""
@@ -201,14 +206,15 @@ def bench_policy(network, batch, threads, episodes, as_json) -> None:
 
 
 @bench.command("decide")
-@click.option("--size", default=128, show_default=True)
-@click.option("--teams", default="16,32,64,128", show_default=True)
-@click.option("--steps", type=click.IntRange(min=2), default=50, show_default=True,
+@click.option("--size", type=SIDE, default=128, show_default=True)
+@click.option("--teams", default="16,32,64,128", show_default=True, help="Team sizes, comma list.")
+@click.option("--steps", type=click.IntRange(2, MAX_EPISODE_STEPS), default=50, show_default=True,
               help="Steps per team size (the first, warming caches up, is not timed).")
 @click.option("--seed", default=0, show_default=True)
 @click.option("--policy", default="formic", show_default=True, help="Team spec (the shipped model for formic).")
 @model_option
-@click.option("--threads", default=1, show_default=True, help="Torch threads (0: torch's default pool).")
+@click.option("--threads", type=click.IntRange(min=0), default=1, show_default=True,
+              help="Torch threads (0: torch's default pool).")
 @json_option(help=None)
 def bench_decide(size, teams, steps, seed, policy, model, threads, as_json) -> None:
     """In-process decision time per step (as `formic sim` runs) for each team size."""
@@ -219,7 +225,7 @@ def bench_decide(size, teams, steps, seed, policy, model, threads, as_json) -> N
     if threads:
         configure_threads(threads)
     results = []
-    for n in map(int, teams.split(",")):  # step 0 (warming caches up) left out
+    for n in comma_list(teams, TEAM, "--teams"):  # step 0 (warming caches up) left out
         config = WorldConfig(height=size, width=size, n_agents=n, episode_steps=steps)
         stats = run_episode(generate_scenario(config, seed), policy, model=model)
         results.append({"agents": n, "decide_ms_per_step": float(stats.decision_seconds[1:].mean() * 1e3),

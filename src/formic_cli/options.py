@@ -7,13 +7,43 @@ import click
 
 from formic_view import DEFAULT_HOST, DEFAULT_PORT
 from formic_world import WorldConfig
-from formic_world.config import PHEROMONE_VARIANTS
+from formic_world.config import MIN_SIDE, PHEROMONE_VARIANTS
+from formic_world.limits import MAX_AGENTS, MAX_EPISODE_STEPS, MAX_SIDE, MAX_VIEW_SIZE
 
 from .summary import click_errors
 
 NAMESPACE_HELP = "ROS namespace of the ForMIC topics and nodes."
 RUN_DOMAIN_HELP = "ROS_DOMAIN_ID for this run (default: the environment's, else 0)."
 PROCESS_DOMAIN_HELP = "ROS_DOMAIN_ID for this process (default: the environment's)."
+
+
+# The world's bounds as click types, so that a value out of them is a usage error naming its option.
+SIDE = click.IntRange(MIN_SIDE, MAX_SIDE)
+TEAM = click.IntRange(1, MAX_AGENTS)
+EPISODE_STEPS = click.IntRange(1, MAX_EPISODE_STEPS)
+OBSTACLES = click.FloatRange(0, 0.5, max_open=True)
+
+
+def comma_list(text: str, kind, option: str, choices=None) -> list:
+    """The distinct values of a comma list option, each converted by ``kind`` (a function or a click
+    type, such as ``TEAM``) and one of ``choices`` when given."""
+    def convert(value: str):
+        return kind.convert(value, None, None) if isinstance(kind, click.ParamType) else kind(value)
+
+    hint = f"'{option}'"
+    try:
+        values = list(dict.fromkeys(convert(v.strip()) for v in text.split(",") if v.strip()))
+    except click.BadParameter as exc:  # its message names the value
+        raise click.BadParameter(exc.message, param_hint=hint) from exc
+    except ValueError as exc:
+        raise click.BadParameter(f"{text!r}: {exc}", param_hint=hint) from exc
+    if not values:
+        raise click.BadParameter("empty list", param_hint=hint)
+    unknown = [v for v in values if choices is not None and v not in choices]
+    if unknown:
+        raise click.BadParameter(f"unknown {', '.join(unknown)}; choose from {', '.join(choices)}",
+                                 param_hint=hint)
+    return values
 
 
 def option_group(*options):
@@ -41,23 +71,31 @@ def ros_options(domain_help: str = RUN_DOMAIN_HELP):
     return option_group(namespace, domain_option(domain_help))
 
 
+def _odd(ctx, param, value: int) -> int:
+    if value % 2 == 0:
+        raise click.BadParameter(f"{value} is even: the window is centred on its agent (5, 11, 21)")
+    return value
+
+
 def world_option_group(steps: int = 512, steps_help: str = "Episode length."):
     """The world options, with this default episode length. Their parameter names are
     WorldConfig's fields, except --size, --seed and --no-pheromones (see world_config_from)."""
     return option_group(
-        click.option("--agents", "n_agents", default=32, show_default=True, help="Team size."),
-        click.option("--size", default=128, show_default=True, help="World side (square)."),
-        click.option("--steps", "episode_steps", type=click.IntRange(min=1), default=steps, show_default=True,
+        click.option("--agents", "n_agents", type=TEAM, default=32, show_default=True, help="Team size."),
+        click.option("--size", type=SIDE, default=128, show_default=True, help="World side (square)."),
+        click.option("--steps", "episode_steps", type=EPISODE_STEPS, default=steps, show_default=True,
                      help=steps_help),
         click.option("--seed", default=0, show_default=True, help="Scenario seed."),
-        click.option("--obstacles", "obstacle_density", default=0.0, show_default=True, help="Obstacle density."),
+        click.option("--obstacles", "obstacle_density", type=OBSTACLES, default=0.0,
+                     show_default=True, help="Obstacle density."),
         click.option("--resources", "capacity", type=click.Choice(["infinite", "finite"]), default="infinite",
                      show_default=True, help="Resource capacity."),
         click.option("--wipeouts", type=click.IntRange(min=0), default=0, show_default=True,
                      help="Pheromone wipeouts of 100 steps."),
         click.option("--variant", "pheromone_variant", type=click.Choice(PHEROMONE_VARIANTS),
                      default="standard", show_default=True, help="Pheromone variant."),
-        click.option("--view-size", default=11, show_default=True, help="Observation window (5, 11, 21)."),
+        click.option("--view-size", type=click.IntRange(3, MAX_VIEW_SIZE), callback=_odd, default=11,
+                     show_default=True, help="Observation window, odd (5, 11, 21)."),
         click.option("--no-pheromones", is_flag=True, help="Agents see an empty pheromone channel."),
         click.option("--timing", type=click.Choice(["reference", "nominal"]), default="reference",
                      show_default=True, help="Service timing (SPEC §1): the reference code's (a load "
@@ -185,7 +223,7 @@ def probe_options(policies: str, teams: str):
         click.option("--model", type=click.Path(exists=True, dir_okay=False), help="Checkpoint of the formic policy."),
         click.option("--scenarios", "scenario_dir", default="eval/readme/scenarios", show_default=True,
                      type=click.Path(exists=True, file_okay=False)),
-        click.option("--size", default=128, show_default=True),
+        click.option("--size", type=SIDE, default=128, show_default=True),
         click.option("--teams", default=teams, show_default=True),
         click.option("--count", default=4, show_default=True, help="Scenarios per team size (the first, by name)."),
         click.option("--channel-empty", is_flag=True,
@@ -201,7 +239,7 @@ def stored_teams(scenario_dir: str, size: int, teams: str, count: int):
     from formic_world.scenario import ScenarioError
     from formic_world.scenario_sets import first_stored
 
-    for team in (int(t) for t in teams.split(",")):
+    for team in comma_list(teams, TEAM, "--teams"):
         try:
             yield team, first_stored(Path(scenario_dir), size, team, count)
         except ScenarioError as exc:

@@ -13,7 +13,9 @@ from pathlib import Path
 
 import click
 
-from .options import (WORLD_OPTION_NAMES, domain_option, fresh_option, greedy_option, hosts_network_option,
+from formic_world.limits import MAX_EPISODE_STEPS
+
+from .options import (SIDE, TEAM, WORLD_OPTION_NAMES, comma_list, domain_option, fresh_option, greedy_option, hosts_network_option,
                       json_option, live_view_port, model_option, option_group, preset_option, ros_options,
                       ros_run_dir_option, scenario_from, team_options, train_config_option, training_config,
                       view_options, world_options)
@@ -343,11 +345,13 @@ def planner(namespace, domain_id, once) -> None:
 
 
 @click.command("ros")
-@click.option("--agents", "teams", default="16,64,128", show_default=True, help="Team sizes.")
-@click.option("--transports", default="batched,per-agent", show_default=True)
-@click.option("--steps", default=300, show_default=True, help="Lockstep steps per measurement.")
-@click.option("--size", default=64, show_default=True, help="World side.")
-@click.option("--repeats", default=1, show_default=True, help="Launches per setting (the best is kept).")
+@click.option("--agents", "teams", default="16,64,128", show_default=True, help="Team sizes, comma list.")
+@click.option("--transports", default="batched,per-agent", show_default=True, help="Comma list.")
+@click.option("--steps", type=click.IntRange(2, MAX_EPISODE_STEPS), default=300, show_default=True,
+              help="Lockstep steps per measurement (step 0, start-up and discovery, is not timed).")
+@click.option("--size", type=SIDE, default=64, show_default=True, help="World side.")
+@click.option("--repeats", type=click.IntRange(min=1), default=1, show_default=True,
+              help="Launches per setting (the best is kept).")
 @domain_option()
 @json_option(help=None)
 def bench_ros(teams, transports, steps, size, repeats, domain_id, as_json) -> None:
@@ -355,9 +359,9 @@ def bench_ros(teams, transports, steps, size, repeats, domain_id, as_json) -> No
     from formic_ros.launch.bench import bench_ros as measure
 
     results = []
-    for transport in transports.split(","):
-        for n in teams.split(","):
-            results.append(measure(int(n), transport.strip(), steps, size, repeats, domain_id))
+    for transport in comma_list(transports, str, "--transports", TRANSPORT.choices):
+        for n in comma_list(teams, TEAM, "--agents"):
+            results.append(measure(n, transport, steps, size, repeats, domain_id))
             if not as_json:
                 r = results[-1]
                 click.echo(f"  {r['agents']:4d} agents, {r['transport']:9s}: {r['steps_per_s']:8.0f} steps/s "

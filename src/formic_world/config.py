@@ -22,6 +22,7 @@ CAPACITY_MODES = ("infinite", "finite")
 TIMINGS = ("reference", "nominal")
 AGENT_ORDERS = ("random", "id")
 TRAINING_FILTERS = ("paper", "reference")
+MIN_SIDE = 12  # cells, a world's height and width (the upper limit: limits.MAX_SIDE)
 TEST_EPISODE_STEPS = 1024  # the paper's test episodes (SPEC §1); WorldConfig's default, 512, is training's
 
 
@@ -94,8 +95,8 @@ class WorldConfig:
                             ("view_size", MAX_VIEW_SIZE), ("episode_steps", MAX_EPISODE_STEPS),
                             ("queue_len", MAX_QUEUE_LEN)):
             check_at_most(name, getattr(self, name), limit)
-        if self.height < 12 or self.width < 12:
-            raise ValueError(f"world must be at least 12x12, got {self.height}x{self.width}")
+        if self.height < MIN_SIDE or self.width < MIN_SIDE:
+            raise ValueError(f"world must be at least {MIN_SIDE}x{MIN_SIDE}, got {self.height}x{self.width}")
         if self.n_agents < 1:
             raise ValueError("n_agents must be >= 1")
         if self.queue_len < 1:

@@ -93,14 +93,17 @@ class TrainerNode(Node):
         self.learn_from(rollout, lag)
 
     def learn_from(self, rollout, lag: int) -> None:
-        """One update from ``rollout`` (``lag`` versions old), the new weights, the log lines."""
+        """One update from ``rollout`` (``lag`` versions old), the episode's end if it ends one,
+        then the new weights: published after the fall guard has had its say, so that a rollback
+        reaches the hosts under the new version (as in process, where the actor shares the net)."""
         stats = self.learner.learn(rollout)
         self.updates += 1
-        self.broadcast()
         self.learner.record("ros", stats | {"lag": lag, "rollout_food": rollout.food}, self.learner.version)
         line = (f"update {self.learner.version}: {rollout.steps}x{len(rollout.agent_ids)} (episode "
                 f"{rollout.episode}, lag {lag}, food {rollout.food:.1f}) loss {stats['loss']:.3f}")
-        self.get_logger().info(line + self.close_episode(rollout))
+        line += self.close_episode(rollout)
+        self.broadcast()
+        self.get_logger().info(line)
 
     def close_episode(self, rollout: Rollout) -> str:
         """The learning curve's part of a rollout learned from: its food, and the episode's end
