@@ -271,6 +271,75 @@ OUT_OF_BOUNDS = [  # (command, the message after "Error: Invalid value for ")
 ]
 
 
+BAD_VALUES = [  # (command, the message after "Error: Invalid value for "): refused before anything starts
+    (["sim", "--seed", "-1"], "'--seed': -1 is not in the range x>=0."),
+    (["sim", "--view", "--view-port", "70000"], "'--view-port': 70000 is not in the range 0<=x<=65535."),
+    (["sim", "--model", ""], "'--model': an empty name: give a file, or leave the option out"),
+    (["sim", "--steps", "2", "--wipeouts", "3"], "'--wipeouts': wipeouts do not fit in the episode"),
+    (["scenarios", "generate", "--out", "unused", "--count", "0"], "'--count': 0 is not in the range x>=1."),
+    (["record", "--out", ""], "'--out': an empty name: give a folder"),
+    (["record", "--out", "unused", "--topics", "/formic/state,state"],
+     "'--topics': 'state': topic name must be absolute, it must lead with a '/'"),
+    (["record", "--out", "unused", "--duration", "-1"], "'--duration': -1.0 is not in the range x>0."),
+    (["replay", ".", "--rate", "nan"], "'--rate': nan is not a finite number"),
+    (["run", "--timeout", "0"], "'--timeout': 0.0 is not in the range x>0."),
+    (["run", "--agents", "4", "--size", "16", "--hosts", "5"], "'--hosts': 5 hosts for 4 agents: at most one an agent"),
+    (["world", "--namespace", "a b"],
+     "'--namespace': namespace must not contain characters other than alphanumerics, '_', or '/'"),
+    (["world", "--domain-id", "-1"], "'--domain-id': -1 is not in the range 0<=x<=232."),
+    (["world", "--dt", "0"], "'--dt': 0.0 is not in the range x>0."),
+    (["world", "--origin-x", "inf"], "'--origin-x': inf is not a finite number"),
+    (["agents", "--ids", "abc"], "'--ids': bad agent range 'abc'"),
+    (["agents", "--ids", "0-1", "--name", "bad name"],
+     "'--name': node name must not contain characters other than alphanumerics or '_'"),
+    (["trainer", "--max-updates", "-1"], "'--max-updates': -1 is not in the range x>=1."),
+    (["train-ros", "--episodes", "0"], "'--episodes': 0 is not in the range x>=1."),
+    (["render", ".", "--out", "run.txt"], "'--out': 'run.txt': a recording renders to .png, .gif, .mp4"),
+    (["render", ".", "--fps", "0"], "'--fps': 0 is not in the range 1<=x<=240."),
+    (["eval", "--env", ""], "'--env': empty list"),
+]
+
+
+@pytest.mark.parametrize("command, message", BAD_VALUES, ids=lambda v: " ".join(v) if isinstance(v, list) else "")
+def test_a_bad_value_is_a_usage_error_naming_its_option(command, message):
+    result = formic(*command)
+    assert result.exit_code == 2 and result.stdout == ""
+    assert result.stderr.endswith(f"Error: Invalid value for {message}\n")
+
+
+@pytest.mark.parametrize("command", [["sim", "--out"], ["scenarios", "generate", "--out"], ["eval", "--out"],
+                                     ["record", "--out"], ["run", "--log-dir"], ["run", "--record"],
+                                     ["train", "--run-dir"], ["trainer", "--run-dir"]])
+def test_an_output_folder_under_a_file_is_refused_before_the_work(tmp_path, command):
+    (tmp_path / "file").write_text("")
+    result = formic(*command, str(tmp_path / "file" / "out"))
+    assert result.exit_code == 2 and result.stderr.endswith(
+        f"Error: Invalid value for '{command[-1]}': '{tmp_path / 'file' / 'out'}' cannot be a folder: "
+        f"{tmp_path / 'file'} is a file\n")
+
+
+def test_files_that_are_not_what_a_command_reads_are_one_line(tmp_path):
+    junk = tmp_path / "junk.mcap"
+    junk.write_bytes(bytes(range(64)))
+    assert_one_line_error(formic("replay", str(junk)), f"{junk}: not an MCAP recording (its first bytes are not MCAP's)")
+    assert_one_line_error(formic("render", str(junk), "--out", str(tmp_path / "run.gif")),
+                          f"{junk}: not an MCAP recording (its first bytes are not MCAP's)")
+    config = tmp_path / "config.json"
+    config.write_text("{")
+    assert_one_line_error(formic("trainer", "--train-config", str(config)), f"{config}: not a training configuration: "
+                          "Expecting property name enclosed in double quotes: line 1 column 2 (char 1)")
+    assert_one_line_error(formic("eval", "--report", "--out", str(tmp_path / "none")),
+                          f"{tmp_path / 'none'}: no episodes to report (formic eval --out {tmp_path / 'none'} plays them)")
+
+
+def test_a_frame_too_large_to_draw_is_refused_before_it_is_allocated(tmp_path):
+    path = tmp_path / "s.json"
+    generate_scenario(WorldConfig(height=2048, width=2048, n_agents=4, episode_steps=5), 0).save(path)
+    assert_one_line_error(formic("render", str(path), "--scale", "9", "--out", str(tmp_path / "s.png")),
+                          "a 2048x2048 world at scale 9 is no frame: the scale goes from 1 to 8 "
+                          "(16384 pixels a side at most)")
+
+
 @pytest.mark.parametrize("command, message", OUT_OF_BOUNDS, ids=lambda v: " ".join(v) if isinstance(v, list) else "")
 def test_a_value_out_of_the_worlds_bounds_is_a_usage_error_naming_its_option(command, message):
     """Before anything runs (no world, no network, no ROS process): the option the user typed,

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import click
 
-from .options import hosts_network_option, json_option, preset_option, ros_options, train_config_option, training_config
+from .options import POSITIVE, OutputFolder, hosts_network_option, json_option, preset_option, ros_options, train_config_option, training_config
 from .summary import click_errors, emit
 
 
@@ -23,15 +23,15 @@ def _print_episode(summary: dict) -> None:
 @click.option("--episodes", type=click.IntRange(min=1), required=True, help="Episodes of this actor's world.")
 @click.option("--first-episode", type=click.IntRange(min=0), default=0, show_default=True,
               help="Global episode to start at (a resumed trainer's checkpoint episode count).")
-@click.option("--deadline-ms", default=120000.0, show_default=True,
+@click.option("--deadline-ms", type=POSITIVE, default=120000.0, show_default=True,
               help="Lockstep deadline; a step can wait for an update, so it is long.")
-@click.option("--startup-timeout", "startup_timeout_s", default=120.0, show_default=True,
+@click.option("--startup-timeout", "startup_timeout_s", type=POSITIVE, default=120.0, show_default=True,
               help="Seconds step 0 waits for the learning host.")
 @click.option("--switch-weights", "switch", type=click.Choice(["chunk", "newest"]), default="chunk", show_default=True,
               help="Wait for each update (a synchronous trainer), or act on with the newest weights "
                    "(`formic trainer --actors K --asynchronous`).")
-@click.option("--log-dir", type=click.Path(file_okay=False), help="Write each process's log here.")
-@click.option("--timeout", "timeout_s", type=float, help="Give up after this many seconds.")
+@click.option("--log-dir", type=OutputFolder(), help="Write each process's log here.")
+@click.option("--timeout", "timeout_s", type=POSITIVE, help="Give up after this many seconds.")
 @ros_options()
 @json_option(help="Print one JSON object at the end.")
 def actor_command(preset, train_config, overrides, actor, first_episode, as_json, **options) -> None:

@@ -9,7 +9,7 @@ import click
 
 from formic_world.config import PHEROMONE_VARIANTS
 
-from .options import EPISODE_STEPS, OBSTACLES, SIDE, TEAM, comma_list, json_option
+from .options import EPISODE_STEPS, OBSTACLES, SIDE, TEAM, OutputFolder, comma_list, json_option
 from .summary import click_errors, emit
 
 DEFAULT_ALGORITHMS = "formic,planner,csaf,csaf11,cardinality"
@@ -32,7 +32,7 @@ DEFAULT_ENVS = "infinite,finite,wipeout"
 @click.option("--seed", default=0, show_default=True, help="Seed the scenario seeds derive from.")
 @click.option("--steps", type=EPISODE_STEPS, help="Episode length [default: 1024, the paper's test "
               "length; with a scenario directory, the files' length].")
-@click.option("--out", type=click.Path(file_okay=False), default="out/eval", show_default=True,
+@click.option("--out", type=OutputFolder(), default="out/eval", show_default=True,
               help="Results directory; rerunning the same command there resumes.")
 @click.option("--model", type=click.Path(dir_okay=False), help="Checkpoint of the formic policy.")
 @click.option("--greedy", is_flag=True, help="The learned policy takes its most likely action.")
@@ -65,7 +65,9 @@ def eval_command(ctx, algorithms, sizes, teams, obstacles, envs, scenarios, seed
         from formic_eval.runner import report_everything
 
         summary = report_everything(Path(out))
-        emit(as_json, summary, f"report: {summary['files'].get('report', '(no episodes)')}")
+        if "report" not in summary["files"]:
+            raise click.ClickException(f"{out}: no episodes to report (formic eval --out {out} plays them)")
+        emit(as_json, summary, f"report: {summary['files']['report']}")
         return
     from formic_eval import evaluate, generate_matrix, load_matrix, settings_grid
     from formic_eval.matrix import ENVIRONMENTS
@@ -75,10 +77,11 @@ def eval_command(ctx, algorithms, sizes, teams, obstacles, envs, scenarios, seed
     from formic_world import ScenarioError
 
     names = comma_list(algorithms, str, "--algorithms", POLICY_NAMES)
-    size_list = comma_list(sizes, SIDE, "--sizes") if sizes else None
-    team_list = comma_list(teams, TEAM, "--teams") if teams else None
-    obstacle_list = comma_list(obstacles, OBSTACLES, "--obstacles") if obstacles else None
-    env_list = comma_list(envs, str, "--env", ENVIRONMENTS) if envs else None
+    # None: every setting of a scenario directory, or the defaults for generated scenarios
+    size_list = comma_list(sizes, SIDE, "--sizes") if sizes is not None else None
+    team_list = comma_list(teams, TEAM, "--teams") if teams is not None else None
+    obstacle_list = comma_list(obstacles, OBSTACLES, "--obstacles") if obstacles is not None else None
+    env_list = comma_list(envs, str, "--env", ENVIRONMENTS) if envs is not None else None
 
     options = dataclasses.replace(_policy_options(names, model, greedy, no_pheromones),
                                   pheromone_variant=pheromone_variant)
@@ -88,10 +91,10 @@ def eval_command(ctx, algorithms, sizes, teams, obstacles, envs, scenarios, seed
             count = int(scenarios)
             if count < 1:
                 raise click.BadParameter("needs at least one scenario", param_hint="--scenarios")
-            grid = settings_grid(comma_list(sizes or DEFAULT_SIZES, SIDE, "--sizes"),
-                                 comma_list(teams or DEFAULT_TEAMS, TEAM, "--teams"),
-                                 comma_list(obstacles or DEFAULT_OBSTACLES, OBSTACLES, "--obstacles"),
-                                 comma_list(envs or DEFAULT_ENVS, str, "--env"), steps or PAPER_STEPS)
+            grid = settings_grid(size_list or comma_list(DEFAULT_SIZES, SIDE, "--sizes"),
+                                 team_list or comma_list(DEFAULT_TEAMS, TEAM, "--teams"),
+                                 obstacle_list or comma_list(DEFAULT_OBSTACLES, OBSTACLES, "--obstacles"),
+                                 env_list or comma_list(DEFAULT_ENVS, str, "--env"), steps or PAPER_STEPS)
             source = out_dir / "scenarios"
             matrix = generate_matrix(grid, count, seed, source)
         elif Path(scenarios).is_dir():

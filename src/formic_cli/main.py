@@ -14,7 +14,7 @@ from formic_world.config import TEST_EPISODE_STEPS
 from formic_world.errors import InputError
 from formic_world.limits import MAX_EPISODE_STEPS
 
-from .options import (EPISODE_STEPS, SIDE, TEAM, comma_list, fresh_option, json_option, live_view_port,
+from .options import (EPISODE_STEPS, SEED, SIDE, TEAM, OutputFolder, comma_list, fresh_option, json_option, live_view_port,
                       model_option, open_live_view, preset_option, scenario_from, team_options, view_options,
                       world_config_from, world_option_group, world_options)
 from .summary import click_errors, emit, emit_json, print_episode_summary
@@ -45,7 +45,7 @@ def cli() -> None:
 @cli.command()
 @world_options
 @team_options
-@click.option("--out", type=click.Path(file_okay=False), default="out/sim", show_default=True,
+@click.option("--out", type=OutputFolder(), default="out/sim", show_default=True,
               help="Where the final picture (and --gif) go.")
 @click.option("--gif", is_flag=True, help="Also write an animation of the episode.")
 @view_options()
@@ -106,8 +106,9 @@ def scenarios() -> None:
 @scenarios.command("generate")
 @world_option_group(TEST_EPISODE_STEPS, "Episode length: the paper's test episodes, as `formic eval` runs them "
                     "(512: training's).")
-@click.option("--count", default=50, show_default=True, help="Scenarios in the set (seeds seed..seed+count-1).")
-@click.option("--out", type=click.Path(file_okay=False), required=True, help="Directory for the set.")
+@click.option("--count", type=click.IntRange(min=1), default=50, show_default=True,
+              help="Scenarios in the set (seeds seed..seed+count-1).")
+@click.option("--out", type=OutputFolder(), required=True, help="Directory for the set.")
 @json_option(help=None)
 def scenarios_generate(count, out, as_json, **world_kw) -> None:
     """Write COUNT scenarios for one size/team/obstacle setting as plain JSON files."""
@@ -140,23 +141,31 @@ def scenarios_show(path, as_json) -> None:
 
 @cli.command()
 @click.argument("source", type=click.Path(exists=True))
-@click.option("--out", type=click.Path(), help="Output file (.png, .gif or .mp4).")
-@click.option("--scale", default=4, show_default=True)
-@click.option("--fps", default=20, show_default=True)
+@click.option("--out", type=click.Path(dir_okay=False), help="Output file (.png, .gif or .mp4).")
+@click.option("--scale", type=click.IntRange(min=1), default=4, show_default=True, help="Pixels a cell.")
+@click.option("--fps", type=click.IntRange(1, 240), default=20, show_default=True)
 def render(source, out, scale, fps) -> None:
     """Render a scenario file (PNG) or a recording (GIF/MP4)."""
     from formic_world import Scenario, World
     from formic_world.render import render_frame, save_png
 
     src = Path(source)
-    if src.is_file() and src.suffix == ".json":
+    scenario = src.is_file() and src.suffix == ".json"
+    suffixes = (".png",) if scenario else (".png", ".gif", ".mp4")
+    if out is not None and Path(out).suffix.lower() not in suffixes:
+        raise click.BadParameter(f"{out!r}: a {'scenario' if scenario else 'recording'} renders to "
+                                 f"{', '.join(suffixes)}", param_hint="'--out'")
+    if scenario:
         target = Path(out or src.with_suffix(".png"))
-        save_png(render_frame(World(Scenario.load(src)), scale=scale), target)
+        with click_errors(ValueError):
+            save_png(render_frame(World(Scenario.load(src)), scale=scale), target)
     else:
         with click_errors(ImportError, prefix="cannot render recordings: "):
+            from formic_record.reading import RecordingError
             from formic_record.replay import render_recording
         target = Path(out or (src.with_suffix(".mp4") if src.is_file() else src / "replay.mp4"))
-        render_recording(src, target, scale=scale, fps=fps)
+        with click_errors(RecordingError, ValueError):
+            render_recording(src, target, scale=scale, fps=fps)
     click.echo(f"wrote {target}")
 
 
@@ -169,7 +178,7 @@ def bench() -> None:
 @click.option("--size", type=SIDE, default=128, show_default=True)
 @click.option("--teams", default="16,32,64,128", show_default=True, help="Team sizes, comma list.")
 @click.option("--steps", type=EPISODE_STEPS, default=512, show_default=True)
-@click.option("--seed", default=0, show_default=True)
+@click.option("--seed", type=SEED, default=0, show_default=True)
 @json_option(help=None)
 def bench_world(size, teams, steps, seed, as_json) -> None:
     """Steps/s and agent-steps/s of the core with random valid actions, observations included."""
@@ -210,7 +219,7 @@ def bench_policy(network, batch, threads, episodes, as_json) -> None:
 @click.option("--teams", default="16,32,64,128", show_default=True, help="Team sizes, comma list.")
 @click.option("--steps", type=click.IntRange(2, MAX_EPISODE_STEPS), default=50, show_default=True,
               help="Steps per team size (the first, warming caches up, is not timed).")
-@click.option("--seed", default=0, show_default=True)
+@click.option("--seed", type=SEED, default=0, show_default=True)
 @click.option("--policy", default="formic", show_default=True, help="Team spec (the shipped model for formic).")
 @model_option
 @click.option("--threads", type=click.IntRange(min=0), default=1, show_default=True,
@@ -241,7 +250,7 @@ def bench_decide(size, teams, steps, seed, policy, model, threads, as_json) -> N
 
 @cli.command()
 @preset_option
-@click.option("--run-dir", type=click.Path(file_okay=False), default="runs/formic", show_default=True)
+@click.option("--run-dir", type=OutputFolder(), default="runs/formic", show_default=True)
 @click.option("--episodes", type=int, help="Environment episodes to add in this call.")
 @click.option("--minutes", type=float, help="Stop after this many minutes (checkpoint kept).")
 @fresh_option
@@ -251,7 +260,7 @@ def bench_decide(size, teams, steps, seed, policy, model, threads, as_json) -> N
               help="Afterwards write the weights alone (a small model file) here.")
 @click.option("--recipe", help="Run every stage of a recipe (recipes/NAME.toml, or a .toml file) into RUN_DIR "
               "and choose RUN_DIR/model.pt on validation; resumes (docs/training.md).")
-@click.option("--seed", type=int, help="The recipe's seed (with --recipe; a single run: --set seed=N).")
+@click.option("--seed", type=SEED, help="The recipe's seed (with --recipe; a single run: --set seed=N).")
 @click.option("--switch", default="", help="With --recipe: one of its [switch.NAME] tables laid over every "
               "stage (e.g. a row of the paper's ablation tables).")
 @click.option("--scale", type=float, default=1.0, show_default=True,

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import click
 
+from formic_topics import DEFAULT_NAMESPACE
 from formic_view import DEFAULT_HOST, DEFAULT_PORT
 from formic_world import WorldConfig
 from formic_world.config import MIN_SIDE, PHEROMONE_VARIANTS
@@ -22,6 +23,46 @@ SIDE = click.IntRange(MIN_SIDE, MAX_SIDE)
 TEAM = click.IntRange(1, MAX_AGENTS)
 EPISODE_STEPS = click.IntRange(1, MAX_EPISODE_STEPS)
 OBSTACLES = click.FloatRange(0, 0.5, max_open=True)
+SEED = click.IntRange(min=0)  # numpy's generators take no negative seed
+PORT = click.IntRange(0, 65535)
+
+COUNT = click.IntRange(min=1)
+DOMAIN_ID = click.IntRange(0, 232)  # Fast DDS derives its ports from the domain id
+
+
+class OutputFolder(click.Path):
+    """A folder the command creates or writes into, refused at once when it cannot be one (a file
+    stands at it or above it), not after the work that fills it."""
+
+    def __init__(self) -> None:
+        super().__init__(file_okay=False)
+
+    def convert(self, value, param, ctx):
+        from pathlib import Path
+
+        folder = super().convert(value, param, ctx)
+        if not str(folder).strip():
+            self.fail("an empty name: give a folder", param, ctx)
+        above = next((parent for parent in Path(folder).absolute().parents if parent.exists()), None)
+        if above is not None and not above.is_dir():
+            self.fail(f"{str(folder)!r} cannot be a folder: {above} is a file", param, ctx)
+        return folder
+
+
+class FiniteFloat(click.FloatRange):
+    """A float range that also refuses nan and infinities (click's ranges let nan through)."""
+
+    def convert(self, value, param, ctx):
+        import math
+
+        number = super().convert(value, param, ctx)
+        if not math.isfinite(number):
+            self.fail(f"{number} is not a finite number", param, ctx)
+        return number
+
+
+POSITIVE = FiniteFloat(min=0, min_open=True)  # seconds, rates, lengths
+NON_NEGATIVE = FiniteFloat(min=0)
 
 
 def comma_list(text: str, kind, option: str, choices=None) -> list:
@@ -62,12 +103,38 @@ def json_option(help: str | None = "Print one JSON object."):
 
 
 def domain_option(help: str = RUN_DOMAIN_HELP):
-    return click.option("--domain-id", type=int, help=help)
+    return click.option("--domain-id", type=DOMAIN_ID, help=help)
+
+
+def ros_namespace(ctx, param, value: str) -> str:
+    """A namespace ROS accepts (relative ones are taken from the root, as rclpy does), checked
+    here rather than in each node process it is handed to."""
+    if value != DEFAULT_NAMESPACE:
+        from rclpy.validate_namespace import validate_namespace
+
+        try:
+            validate_namespace(value if value.startswith("/") else f"/{value}")
+        except Exception as exc:  # rclpy's InvalidNamespaceException: its first line says why
+            raise click.BadParameter(str(exc).splitlines()[0].removeprefix("Invalid namespace: ").rstrip(":")) from exc
+    return value
+
+
+def ros_node_name(ctx, param, value: str | None) -> str | None:
+    """A node name ROS accepts, checked before any process starts."""
+    if value is not None:
+        from rclpy.validate_node_name import validate_node_name
+
+        try:
+            validate_node_name(value)
+        except Exception as exc:  # rclpy's InvalidNodeNameException: its first line says why
+            raise click.BadParameter(str(exc).splitlines()[0].removeprefix("Invalid node name: ").rstrip(":")) from exc
+    return value
 
 
 def ros_options(domain_help: str = RUN_DOMAIN_HELP):
     """--namespace and --domain-id."""
-    namespace = click.option("--namespace", default="/formic", show_default=True, help=NAMESPACE_HELP)
+    namespace = click.option("--namespace", default=DEFAULT_NAMESPACE, show_default=True, callback=ros_namespace,
+                             help=NAMESPACE_HELP)
     return option_group(namespace, domain_option(domain_help))
 
 
@@ -85,7 +152,7 @@ def world_option_group(steps: int = 512, steps_help: str = "Episode length."):
         click.option("--size", type=SIDE, default=128, show_default=True, help="World side (square)."),
         click.option("--steps", "episode_steps", type=EPISODE_STEPS, default=steps, show_default=True,
                      help=steps_help),
-        click.option("--seed", default=0, show_default=True, help="Scenario seed."),
+        click.option("--seed", type=SEED, default=0, show_default=True, help="Scenario seed."),
         click.option("--obstacles", "obstacle_density", type=OBSTACLES, default=0.0,
                      show_default=True, help="Obstacle density."),
         click.option("--resources", "capacity", type=click.Choice(["infinite", "finite"]), default="infinite",
@@ -108,7 +175,13 @@ WORLD_FIELDS = ("n_agents", "episode_steps", "obstacle_density", "capacity", "wi
                 "view_size", "timing")
 WORLD_OPTION_NAMES = (*WORLD_FIELDS, "size", "seed", "no_pheromones")
 
-model_option = click.option("--model", type=click.Path(dir_okay=False),
+def _named(ctx, param, value: str | None) -> str | None:
+    if value is not None and not value.strip():
+        raise click.BadParameter("an empty name: give a file, or leave the option out")
+    return value
+
+
+model_option = click.option("--model", type=click.Path(dir_okay=False), callback=_named,
                             help="Checkpoint for the formic policy.")
 greedy_option = click.option("--greedy", is_flag=True, help="Learned agents take the most likely action.")
 team_options = option_group(
@@ -128,7 +201,7 @@ train_config_option = click.option(
     "--train-config", type=click.Path(exists=True, dir_okay=False),
     help="Start from this training configuration (a run directory's config.json) instead of --preset.")
 ros_run_dir_option = click.option(
-    "--run-dir", type=click.Path(file_okay=False), default="runs/formic-ros", show_default=True,
+    "--run-dir", type=OutputFolder(), default="runs/formic-ros", show_default=True,
     help="Checkpoints (latest.pt) and TensorBoard logs; resumed unless --fresh.")
 
 
@@ -139,10 +212,16 @@ def training_config(preset: str, config_file: str | None, overrides: tuple[str, 
     from formic_trainer.config import make_config, parse_overrides
 
     if config_file:
-        from formic_trainer.config import load_train_config
-
-        return dataclasses.replace(load_train_config(config_file), **parse_overrides(overrides))
+        return dataclasses.replace(stored_train_config(config_file), **parse_overrides(overrides))
     return make_config(preset, **parse_overrides(overrides))
+
+
+def stored_train_config(path: str):
+    """A run directory's ``config.json``; one that does not read as one is an error naming it."""
+    from formic_trainer.config import load_train_config
+
+    with click_errors(OSError, ValueError, TypeError, KeyError, prefix=f"{path}: not a training configuration: "):
+        return load_train_config(path)
 
 
 def scenario_from(scenario_file: str | None, world_kw: dict):
@@ -161,8 +240,9 @@ def world_config_from(kwargs: dict) -> tuple[WorldConfig, int]:
     try:
         config = WorldConfig(height=size, width=size, pheromones_visible=not kwargs.pop("no_pheromones"),
                              **fields)
-    except ValueError as exc:
-        raise click.BadParameter(str(exc)) from exc
+    except ValueError as exc:  # what the option types cannot see: two options together
+        hint = "'--wipeouts'" if str(exc).startswith("wipeouts") else None
+        raise click.BadParameter(str(exc), param_hint=hint) from exc
     return config, seed
 
 
@@ -172,7 +252,7 @@ def view_options():
         click.option("--view", "live_view", is_flag=True,
                      help="Serve a live view of the run while it goes (Foxglove WebSocket; open it in "
                           "Foxglove or Lichtblick)."),
-        click.option("--view-port", default=DEFAULT_PORT, show_default=True,
+        click.option("--view-port", type=PORT, default=DEFAULT_PORT, show_default=True,
                      help=f"Port of the live view (on {DEFAULT_HOST}; 0: any free port)."),
         click.option("--view-wait", is_flag=True, help="With --view: start stepping once a viewer has subscribed."),
     )

@@ -15,9 +15,10 @@ import click
 
 from formic_world.limits import MAX_EPISODE_STEPS
 
-from .options import (SIDE, TEAM, WORLD_OPTION_NAMES, comma_list, domain_option, fresh_option, greedy_option, hosts_network_option,
-                      json_option, live_view_port, model_option, option_group, preset_option, ros_options,
-                      ros_run_dir_option, scenario_from, team_options, train_config_option, training_config,
+from .options import (COUNT, POSITIVE, SIDE, TEAM, WORLD_OPTION_NAMES, FiniteFloat, OutputFolder, comma_list,
+                      domain_option, fresh_option, greedy_option, hosts_network_option, json_option, live_view_port,
+                      model_option, option_group, preset_option, ros_node_name, ros_options, ros_run_dir_option,
+                      scenario_from, stored_train_config, team_options, train_config_option, training_config,
                       view_options, world_options)
 from .robot_commands import (robot, robot_run_options, robots_sim, run_robot_options, scenarios_starts,
                              world_robot_options)
@@ -32,24 +33,24 @@ def lockstep_options(deadline_ms: float = 1000.0,
                      startup_timeout: float = 60.0, viewer_every: int = 10, rate: bool = True):
     """The world's --namespace --domain-id --deadline-ms --startup-timeout --rate --viewer-every (named
     as RunOptions' fields); ``rate=False`` leaves --rate out."""
-    rate_option = click.option("--rate", "rate_hz", type=float,
+    rate_option = click.option("--rate", "rate_hz", type=POSITIVE,
                                help="Free-running: steps per second, not waiting for agents.")
     return option_group(
         ros_options(),
-        click.option("--deadline-ms", default=deadline_ms, show_default=True, help=deadline_help),
-        click.option("--startup-timeout", "startup_timeout_s", default=startup_timeout, show_default=True,
+        click.option("--deadline-ms", type=POSITIVE, default=deadline_ms, show_default=True, help=deadline_help),
+        click.option("--startup-timeout", "startup_timeout_s", type=POSITIVE, default=startup_timeout,
+                     show_default=True,
                      help="Seconds step 0 waits for every agent."),
         *([rate_option] if rate else []),
-        click.option("--viewer-every", default=viewer_every, show_default=True,
+        click.option("--viewer-every", type=click.IntRange(min=0), default=viewer_every, show_default=True,
                      help="Publish map and markers every k steps (0: never)."),
     )
 
 
 # --log-dir --timeout of the commands that launch processes (named as RunOptions' fields)
 launch_options = option_group(
-    click.option("--log-dir", type=click.Path(file_okay=False),
-                 help="Write each process's log here instead of stderr."),
-    click.option("--timeout", "timeout_s", type=float, help="Give up after this many seconds."),
+    click.option("--log-dir", type=OutputFolder(), help="Write each process's log here instead of stderr."),
+    click.option("--timeout", "timeout_s", type=POSITIVE, help="Give up after this many seconds."),
 )
 
 
@@ -89,12 +90,13 @@ def _parse_external(text: str | None) -> tuple[int, ...]:
 @hosts_network_option
 @world_options
 @team_options
-@click.option("--hosts", default=1, show_default=True, help="Agent host processes to split the team over.")
+@click.option("--hosts", type=COUNT, default=1, show_default=True,
+              help="Agent host processes to split the team over (at most one an agent).")
 @click.option("--transport", type=TRANSPORT, default="per-agent", show_default=True,
               help="One node and topic pair per agent, or one batched topic pair per host.")
 @click.option("--external", help="Agents driven by your own node on their per-agent topics, e.g. 5 or 0-3.")
-@click.option("--record", type=click.Path(file_okay=False), help="Record every topic to this rosbag2 (MCAP) directory.")
-@click.option("--timeline", type=click.Path(file_okay=False),
+@click.option("--record", type=OutputFolder(), help="Record every topic to this rosbag2 (MCAP) directory.")
+@click.option("--timeline", type=OutputFolder(),
               help="Note when each step's messages leave and arrive in every process, into this (fresh) folder, "
                    "and report where a step's time went (formic timeline).")
 @lockstep_options()
@@ -110,6 +112,9 @@ def run(scenario_file, external, live_view, view_port, view_wait, as_json, timel
         raise click.UsageError("--timeline times agent hosts; the centralized planner runs without one")
     robots = robot_run_options(fields)  # --robots and the rest (docs/robots.md)
     scenario = scenario_from(scenario_file, fields)  # takes the world options out: RunOptions' fields remain
+    if fields["hosts"] > scenario.config.n_agents:
+        raise click.BadParameter(f"{fields['hosts']} hosts for {scenario.config.n_agents} agents: at most one an agent",
+                                 param_hint="'--hosts'")
     options = RunOptions(scenario=scenario, external=_parse_external(external), robots=robots, **fields,
                          progress=not as_json and sys.stderr.isatty(),
                          view_port=live_view_port(live_view, view_port, view_wait), view_wait=view_wait)
@@ -184,7 +189,7 @@ def timeline_report(folder, as_json) -> None:
               help="Serve a stored scenario (its configuration wins over world options).")
 @click.option("--policy-label", default="", help="Which policies drive the team (recorded in the scenario message).")
 @lockstep_options()
-@click.option("--dt", default=0.1, show_default=True, help="Simulated seconds per step (/clock).")
+@click.option("--dt", type=POSITIVE, default=0.1, show_default=True, help="Simulated seconds per step (/clock).")
 @click.option("--training-masks", is_flag=True, help="Fill the training-filter masks of ObservationBatch.")
 @click.option("--observation-encoding", type=click.Choice(["compact", "float32"]), default="compact",
               show_default=True,
@@ -192,25 +197,27 @@ def timeline_report(folder, as_json) -> None:
 @click.option("--require-subscriber", "require_subscribers", multiple=True,
               type=click.Choice(["state", "applied_actions", "observations", "summary", "scenario", "score"]),
               help="Do not start before this topic has a subscriber (e.g. a recorder); repeatable.")
-@click.option("--recorders", default=0, show_default=True,
+@click.option("--recorders", type=click.IntRange(min=0), default=0, show_default=True,
               help="Do not step before this many recorders (`formic record`) have matched every topic; "
                    "recorders already running when the world starts are waited for anyway.")
 @click.option("--stay", is_flag=True, help="Keep serving the latched scenario and summary after the episode.")
 @click.option("--paused", is_flag=True,
               help="Start paused at step 0 for a simulation_interfaces client (play, step, reset: docs/ros.md) "
                    "and stay up until it sets STATE_QUITTING.")
-@click.option("--cell-size", default=1.0, show_default=True,
+@click.option("--cell-size", type=POSITIVE, default=1.0, show_default=True,
               help="Metres per cell in the map frame of the entity poses (simulation_interfaces).")
-@click.option("--origin-x", default=0.0, show_default=True, help="Map x of the grid's south-west corner (m).")
-@click.option("--origin-y", default=0.0, show_default=True, help="Map y of the grid's south-west corner (m).")
+@click.option("--origin-x", type=FiniteFloat(), default=0.0, show_default=True,
+              help="Map x of the grid's south-west corner (m).")
+@click.option("--origin-y", type=FiniteFloat(), default=0.0, show_default=True,
+              help="Map y of the grid's south-west corner (m).")
 @click.option("--allow-empty", is_flag=True,
               help="Step through the episode even when agents do not answer step 0 (default: exit with an error "
                    "naming them).")
 @click.option("--train-config", type=click.Path(exists=True, dir_okay=False),
               help="Training mode: play --episodes episodes on scenarios drawn as `formic train` draws them "
                    "for this training configuration (a run directory's config.json); world options are ignored.")
-@click.option("--episodes", default=1, show_default=True, help="Training mode: episodes to play.")
-@click.option("--first-episode", default=0, show_default=True,
+@click.option("--episodes", type=COUNT, default=1, show_default=True, help="Training mode: episodes to play.")
+@click.option("--first-episode", type=click.IntRange(min=0), default=0, show_default=True,
               help="Training mode: global episode to start from (a resumed run's).")
 @click.option("--progress", is_flag=True, help="Show a progress bar on stderr.")
 @world_robot_options
@@ -228,10 +235,8 @@ def world(scenario_file, domain_id, deadline_ms, stay, train_config, episodes, f
     options = WorldNodeOptions(deadline_s=deadline_ms / 1e3, view_port=live_view_port(live_view, view_port, view_wait),
                                view_wait=view_wait, **fields)
     if train_config:
-        from formic_trainer.config import load_train_config
-
-        with click_errors(TypeError, ValueError, prefix=f"{train_config}: "):
-            cfg = load_train_config(train_config)
+        cfg = stored_train_config(train_config)
+        with click_errors(ValueError, prefix=f"{train_config}: "):
             require_one_world(cfg)
     with click_errors(RunError, interrupted=""):
         if train_config:
@@ -252,8 +257,8 @@ def world(scenario_file, domain_id, deadline_ms, stay, train_config, episodes, f
 @greedy_option
 @click.option("--transport", type=TRANSPORT, default="per-agent", show_default=True)
 @ros_options()
-@click.option("--name", help="Node name of the host (default agent_host_<pid>).")
-@click.option("--threads", default=1, show_default=True, help="Torch threads for learned agents.")
+@click.option("--name", callback=ros_node_name, help="Node name of the host (default agent_host_<pid>).")
+@click.option("--threads", type=COUNT, default=1, show_default=True, help="Torch threads for learned agents.")
 @click.option("--once", is_flag=True, help="Exit when the episode ends (default: serve episode after episode).")
 @click.option("--train-config", type=click.Path(exists=True, dir_okay=False),
               help="Learning mode (batched transport): the agents act and send rollouts for the trainer node "
@@ -262,8 +267,8 @@ def world(scenario_file, domain_id, deadline_ms, stay, train_config, episodes, f
               help="Learning mode: wait for each rollout's update and act on with it (as `formic train`), "
                    "wait at each episode start for the updates of its rollouts, or never wait and take the "
                    "newest weights at each chunk start (asynchronous).")
-@click.option("--episodes", type=int, help="Learning mode: exit after this many episodes.")
-@click.option("--first-episode", default=0, show_default=True,
+@click.option("--episodes", type=COUNT, help="Learning mode: exit after this many episodes.")
+@click.option("--first-episode", type=click.IntRange(min=0), default=0, show_default=True,
               help="Learning mode: global episode number of the first episode (a resumed run's).")
 def agents(ids, policy, model, greedy, transport, namespace, domain_id, name, threads, once, train_config,
            switch_weights, episodes, first_episode) -> None:
@@ -272,15 +277,17 @@ def agents(ids, policy, model, greedy, transport, namespace, domain_id, name, th
     from formic_ros.errors import WorldLost
     from formic_runtime.team import parse_ids
 
-    with click_errors(ValueError, FileNotFoundError, WorldLost, interrupted=""):
+    try:
         agent_ids = parse_ids(ids)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="'--ids'") from exc
+    with click_errors(ValueError, FileNotFoundError, WorldLost, interrupted=""):
         if train_config:
             from formic_ros.drivers.learning_host import serve_learning_agents
-            from formic_trainer.config import load_train_config
 
             if transport != "batched":
                 raise click.UsageError("learning mode (--train-config) needs --transport batched")
-            serve_learning_agents(agent_ids, load_train_config(train_config), switch=switch_weights,
+            serve_learning_agents(agent_ids, stored_train_config(train_config), switch=switch_weights,
                                   first_episode=first_episode, namespace=namespace, name=name,
                                   episodes=1 if once else episodes, domain_id=domain_id, threads=threads)
             return
@@ -295,7 +302,7 @@ def agents(ids, policy, model, greedy, transport, namespace, domain_id, name, th
 @click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE",
               help="Override a training field (one world: --set teams=N).")
 @ros_run_dir_option
-@click.option("--episodes", type=int, required=True, help="Environment episodes to add in this call.")
+@click.option("--episodes", type=COUNT, required=True, help="Environment episodes to add in this call.")
 @fresh_option
 @click.option("--switch-weights", "switch", type=SWITCH, default="chunk", show_default=True,
               help="Hosts wait for each rollout's update (as `formic train`), take new weights per episode, or "

@@ -11,9 +11,9 @@ import click
 
 from formic_ros.drivers.lag import DEFAULT_MAX_LAG  # no rclpy, no torch
 
-from .options import (PROCESS_DOMAIN_HELP, domain_option, fresh_option, hosts_network_option, json_option,
-                      live_view_port, open_live_view, preset_option, ros_options, ros_run_dir_option,
-                      train_config_option, training_config, view_options)
+from .options import (COUNT, NON_NEGATIVE, POSITIVE, PROCESS_DOMAIN_HELP, OutputFolder, domain_option, fresh_option,
+                      hosts_network_option, json_option, live_view_port, open_live_view, preset_option, ros_options,
+                      ros_run_dir_option, train_config_option, training_config, view_options)
 from .summary import click_errors, emit, emit_json
 
 _AGENT_PART = re.compile(r"(?<=/)agent_\d+(?=/|$)")
@@ -44,17 +44,30 @@ def _split(values: tuple[str, ...]) -> tuple[str, ...]:
     return tuple(t.strip() for v in values for t in v.split(",") if t.strip())
 
 
+def _topic_names(ctx, param, values: tuple[str, ...]) -> tuple[str, ...]:
+    """Absolute ROS topic names, checked before anything is recorded or played."""
+    from rclpy.validate_full_topic_name import validate_full_topic_name
+
+    for name in _split(values):
+        try:
+            validate_full_topic_name(name)
+        except Exception as exc:  # rclpy's InvalidTopicNameException: its first line says why
+            raise click.BadParameter(f"{name!r}: {str(exc).splitlines()[0].removeprefix('Invalid topic name: ').rstrip(':')}") \
+                from exc
+    return values
+
+
 @click.command("record")
 @hosts_network_option
-@click.option("--out", required=True, type=click.Path(file_okay=False),
+@click.option("--out", required=True, type=OutputFolder(),
               help="Recording directory to create (rosbag2 with MCAP storage).")
-@click.option("--topics", multiple=True, metavar="TOPIC[,TOPIC]",
+@click.option("--topics", multiple=True, metavar="TOPIC[,TOPIC]", callback=_topic_names,
               help="Absolute topic names to record (default: every topic in the namespace, and /clock).")
 @ros_options(domain_help=PROCESS_DOMAIN_HELP)
 @click.option("--model", type=click.Path(exists=True, dir_okay=False),
               help="Checkpoint the learned agents run: its id is stored with the recording.")
-@click.option("--duration", type=float, help="Stop after this many seconds (default: at Ctrl-C or SIGTERM).")
-@click.option("--chunk-kb", default=256, show_default=True,
+@click.option("--duration", type=POSITIVE, help="Stop after this many seconds (default: at Ctrl-C or SIGTERM).")
+@click.option("--chunk-kb", type=COUNT, default=256, show_default=True,
               help="MCAP chunk size; a killed recorder loses at most its last chunk (or 0.5 s).")
 @json_option(help="Print one JSON object at the end.")
 def record_command(out, topics, namespace, domain_id, model, duration, chunk_kb, as_json) -> None:
@@ -87,10 +100,11 @@ def record_command(out, topics, namespace, domain_id, model, duration, chunk_kb,
 @click.option("--repair", is_flag=True, help="Rebuild the index and metadata.yaml of a recording cut short "
               "(the original file is kept as <name>.mcap.truncated).")
 @view_options()
-@click.option("--rate", default=1.0, show_default=True,
+@click.option("--rate", type=NON_NEGATIVE, default=1.0, show_default=True,
               help="--republish and --view speed factor (--view: of sim time; 0: as fast as possible).")
-@click.option("--topics", multiple=True, metavar="TOPIC[,TOPIC]", help="--republish only these topics.")
-@click.option("--wait", default=1.0, show_default=True,
+@click.option("--topics", multiple=True, metavar="TOPIC[,TOPIC]", callback=_topic_names,
+              help="--republish only these topics.")
+@click.option("--wait", type=NON_NEGATIVE, default=1.0, show_default=True,
               help="--republish starts once every topic has a subscriber, or after this many seconds.")
 @domain_option(help=PROCESS_DOMAIN_HELP)
 @json_option()
@@ -107,9 +121,10 @@ def replay_command(recording, verify, republish, repair, live_view, view_port, v
             from formic_record.replay import view_recording
 
             with open_live_view(view_port, wait=view_wait) as view:
+                url = view.url  # the port served (with --view-port 0, the one chosen), while it is served
                 steps = view_recording(recording, view, rate=rate)
-            emit(as_json, {"recording": str(recording), "steps": steps, "view": view.url},
-                 f"showed {steps} steps of {recording} on {view.url}")
+            emit(as_json, {"recording": str(recording), "steps": steps, "view": url},
+                 f"showed {steps} steps of {recording} on {url}")
         elif repair:
             report = repair_recording(recording)
             emit(as_json, {"repaired": report.repaired, "messages": report.messages,
@@ -150,13 +165,13 @@ def replay_command(recording, verify, republish, repair, live_view, view_port, v
 @fresh_option
 @train_config_option
 @click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE", help="Override a training field.")
-@click.option("--max-updates", type=int, help="Stop after this many updates (default: at Ctrl-C or SIGTERM).")
-@click.option("--max-rollouts", type=int, help="Stop after this many rollouts, learned from or dropped.")
-@click.option("--max-lag", default=DEFAULT_MAX_LAG, show_default=True,
+@click.option("--max-updates", type=COUNT, help="Stop after this many updates (default: at Ctrl-C or SIGTERM).")
+@click.option("--max-rollouts", type=COUNT, help="Stop after this many rollouts, learned from or dropped.")
+@click.option("--max-lag", type=click.IntRange(min=0), default=DEFAULT_MAX_LAG, show_default=True,
               help="Learn from rollouts at most this many weights versions old; drop older ones.")
 @click.option("--actors", type=click.IntRange(min=0), default=0,
               help="Wait for this many actors (`formic actor`, one per world) and update from all their rollouts.")
-@click.option("--actor-deadline", "actor_deadline_s", default=30.0, show_default=True,
+@click.option("--actor-deadline", "actor_deadline_s", type=POSITIVE, default=30.0, show_default=True,
               help="With --actors: seconds after an update's first rollout before it goes on without a silent actor.")
 @click.option("--asynchronous", is_flag=True,
               help="With --actors: one update from each actor's rollout as it comes, up to --max-lag versions old "

@@ -18,7 +18,7 @@ from rosbags.rosbag2.metadata import parse_qos
 from ruamel.yaml import YAML
 
 from .bag import REPAIRED_KEY, RUN_INFO_RECORD, BagWriter, typestore_from_schemas
-from .integrity import check_integrity, readable_records, salvage
+from .integrity import MAGIC as MCAP_MAGIC, check_integrity, readable_records, salvage
 
 KEPT_SUFFIX = ".truncated"  # what --repair keeps of the file it replaced
 REPAIR_HINT = " (formic replay --repair keeps what verifies)"
@@ -119,6 +119,10 @@ class Recording:
         self._corruption: str | None | bool = False  # not checked yet
         if not self.mcap_path.is_file():
             raise RecordingError(f"{self.mcap_path}: no such file")
+        with self.mcap_path.open("rb") as handle:
+            head = handle.read(len(MCAP_MAGIC))
+        if len(head) == len(MCAP_MAGIC) and head != MCAP_MAGIC:  # shorter: cut within the magic, streamed below
+            raise RecordingError(f"{self.mcap_path}: not an MCAP recording (its first bytes are not MCAP's)")
         try:
             self._scan_indexed()
         except Exception:  # noqa: BLE001 - any failure of the index means: stream it

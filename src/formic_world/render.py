@@ -26,6 +26,7 @@ if TYPE_CHECKING:
     from .scenario import Scenario
     from .world import World
 
+MAX_FRAME_SIDE = 16384  # pixels: a frame is drawn as H x W x 3 float32 blocks first (3 GiB at this side)
 FREE_COLOUR = np.array([255, 255, 255], dtype=np.float32)
 OBSTACLE_COLOUR = np.array([64, 64, 64], dtype=np.float32)
 RESOURCE_COLOUR = np.array([30, 90, 220], dtype=np.float32)
@@ -43,9 +44,10 @@ CAPTION_HEIGHT = 14  # pixels of the optional caption strip
 def render_frame(world: "World", scale: int = 4, caption: bool = False) -> np.ndarray:
     """The world as an RGB image, shape (H*scale, W*scale, 3) uint8 (plus a caption strip
     of ``CAPTION_HEIGHT`` rows with the step and score on top when ``caption``)."""
-    if scale < 1:
-        raise ValueError(f"scale must be >= 1, got {scale}")
     height, width = world.grid.shape
+    if not 1 <= scale <= MAX_FRAME_SIDE // max(height, width):
+        raise ValueError(f"a {height}x{width} world at scale {scale} is no frame: the scale goes from 1 to "
+                         f"{MAX_FRAME_SIDE // max(height, width)} ({MAX_FRAME_SIDE} pixels a side at most)")
     blocks = np.empty((height, scale, width, scale, 3), dtype=np.float32)
     blocks[:] = cell_colours(world)[:, None, :, None, :]
     if scale >= 3:

@@ -20,7 +20,7 @@ def require_one_world(cfg: TrainConfig) -> None:
     """A world node serves one world: distributed training needs one meta-agent team."""
     if len(cfg.teams) != 1:
         raise ValueError(f"distributed training runs one meta-agent world; teams={list(cfg.teams)} "
-                         "(set one team size, e.g. --set teams=16)")
+                         "(give it one team size, e.g. teams=16)")
 
 
 def why_hosts_silent(node: WorldNode) -> str:
