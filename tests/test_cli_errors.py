@@ -297,6 +297,21 @@ BAD_VALUES = [  # (command, the message after "Error: Invalid value for "): refu
     (["render", ".", "--out", "run.txt"], "'--out': 'run.txt': a recording renders to .png, .gif, .mp4"),
     (["render", ".", "--fps", "0"], "'--fps': 0 is not in the range 1<=x<=240."),
     (["eval", "--env", ""], "'--env': empty list"),
+    (["agents", "--ids", "0-100000000"], "'--ids': agent range '0-100000000' is outside 0-65535"),
+    (["run", "--external", "0-100000000"], "'--external': agent range '0-100000000' is outside 0-65535"),
+    (["robot", "--agent", ""], "'--agent': no agent ids in ''"),
+    (["robots-sim", "--robots", "0", "--seed", "-1"], "'--seed': -1 is not in the range x>=0."),
+    (["robot", "--agent", "0", "--odom", "/robot_{x}/odom"],
+     "'--odom': '/robot_{x}/odom': the only field is the agent id, {agent} (or {id})"),
+    (["robot", "--agent", "0", "--pose", "/robot {agent}/pose"], "'--pose': '/robot {agent}/pose': topic name must "
+     "not contain characters other than alphanumerics, '_', '~', '{', or '}'"),
+    (["robot", "--agent", "0", "--odom-origin", "1,nan,0"],
+     "'--odom-origin': odometry origin '1,nan,0': use map, start or X,Y,YAW (finite metres, radians)"),
+    (["robot", "--agent", "0", "--max-speed", "0"], "'--max-speed': 0.0 is not in the range x>0."),
+    (["robots-sim", "--robots", "0", "--noise", "-0.1"], "'--noise': -0.1 is not in the range x>=0."),
+    (["scenarios", "starts", "--cell-size", "0"], "'--cell-size': 0.0 is not in the range x>0."),
+    (["run", "--robots", "0", "--robots-sim", "--robot-stall-rate", "-1"],
+     "'--robot-stall-rate': -1.0 is not in the range x>=0."),
 ]
 
 
@@ -403,12 +418,14 @@ def test_view_wait_without_the_view_is_a_usage_error(command):
 def test_robot_options_of_formic_run_are_checked_before_any_process_starts():
     usage = formic("run", *TINY_WORLD, "--robots", "2", "--robot-odom-origin", "east")
     assert usage.exit_code == 2 and usage.stderr.splitlines()[-1] == (
-        "Error: Invalid value for --robot-odom-origin: odometry origin 'east': use map, start or X,Y,YAW "
-        "(metres, radians)")
+        "Error: Invalid value for '--robot-odom-origin': odometry origin 'east': use map, start or X,Y,YAW "
+        "(finite metres, radians)")
     assert_one_line_error(formic("run", *TINY_WORLD, "--robots", "1", "--robots-sim", "--robot-odom-origin", "start"),
                           "--robot-odom-origin is for real robots: the simulated robots' odometry is in the map frame")
-    assert_one_line_error(formic("run", *TINY_WORLD, "--robots", "1", "--robot-cmd-vel", "/r{agent_id}/cmd_vel"),
-                          "robot topic '/r{agent_id}/cmd_vel': the only field is {id} (the agent id)")
+    usage = formic("run", *TINY_WORLD, "--robots", "1", "--robot-cmd-vel", "/r{agent_id}/cmd_vel")
+    assert usage.exit_code == 2 and usage.stderr.splitlines()[-1] == (
+        "Error: Invalid value for '--robot-cmd-vel': '/r{agent_id}/cmd_vel': the only field is the agent id, "
+        "{agent} (or {id})")
 
 
 def test_scenarios_starts_prints_each_robots_start_cell_and_its_centre():
@@ -434,7 +451,7 @@ def test_a_timeline_goes_into_a_fresh_folder_and_its_report_names_what_is_missin
     (tmp_path / "world-1.csv").write_text("event,step,ns\n")
     usage = formic("run", *TINY_WORLD, "--timeline", str(tmp_path))
     assert usage.exit_code == 2 and usage.stderr.splitlines()[-1] == (
-        f"Error: Invalid value for --timeline: {tmp_path} already holds a run's timeline: give each run a fresh folder")
+        f"Error: Invalid value for '--timeline': {tmp_path} already holds a run's timeline: give each run a fresh folder")
     planner = formic("run", *TINY_WORLD, "--policy", "planner", "--timeline", str(tmp_path / "fresh"))
     assert planner.exit_code == 2 and planner.stderr.splitlines()[-1] == (
         "Error: --timeline times agent hosts; the centralized planner runs without one")

@@ -90,7 +90,7 @@ def eval_command(ctx, algorithms, sizes, teams, obstacles, envs, scenarios, seed
         if scenarios.strip().isdigit():
             count = int(scenarios)
             if count < 1:
-                raise click.BadParameter("needs at least one scenario", param_hint="--scenarios")
+                raise click.BadParameter("needs at least one scenario", param_hint="'--scenarios'")
             grid = settings_grid(size_list or comma_list(DEFAULT_SIZES, SIDE, "--sizes"),
                                  team_list or comma_list(DEFAULT_TEAMS, TEAM, "--teams"),
                                  obstacle_list or comma_list(DEFAULT_OBSTACLES, OBSTACLES, "--obstacles"),
@@ -101,7 +101,7 @@ def eval_command(ctx, algorithms, sizes, teams, obstacles, envs, scenarios, seed
             source = Path(scenarios)
             matrix = load_matrix(source, size_list, team_list, obstacle_list, env_list, steps)
         else:
-            raise click.BadParameter(f"{scenarios!r} is neither a count nor a directory", param_hint="--scenarios")
+            raise click.BadParameter(f"{scenarios!r} is neither a count nor a directory", param_hint="'--scenarios'")
     if not matrix:
         raise click.ClickException(f"no scenarios in {scenarios} match the selected settings")
     try:
@@ -125,7 +125,7 @@ def _report_seeds(baselines_folder: Path, folders: list[Path], as_json: bool) ->
 
     names = [folder.name for folder in folders]
     if len(set(names)) < len(names):
-        raise click.BadParameter(f"two seed folders share a name ({', '.join(names)})", param_hint="--seed-eval")
+        raise click.BadParameter(f"two seed folders share a name ({', '.join(names)})", param_hint="'--seed-eval'")
     per_seed = {folder.name: test_set_episodes(folder_episodes(folder), "formic") for folder in folders}
     empty = [name for name, records in per_seed.items() if not records]
     if empty:

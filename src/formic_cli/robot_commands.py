@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import click
 
-from .options import (greedy_option, hosts_network_option, json_option, model_option, option_group, ros_options,
-                      scenario_from, world_options)
+from .options import (NON_NEGATIVE, POSITIVE, SEED, FiniteFloat, greedy_option, hosts_network_option, json_option,
+                      model_option, option_group, ros_options, scenario_from, world_options)
 from .summary import click_errors, emit_json
 
 from formic_ros.robots.settings import (CMD_VEL as DEFAULT_CMD_VEL, MAX_SPEED, MAX_TURN, ODOM as DEFAULT_ODOM,
@@ -18,18 +18,49 @@ def _ids(ctx, param, text: str | None) -> tuple[int, ...]:
     from formic_runtime.team import parse_ids
 
     try:
-        return tuple(parse_ids(text)) if text else ()
+        return () if text is None else tuple(parse_ids(text))
     except ValueError as exc:
         raise click.BadParameter(str(exc), ctx=ctx, param=param) from exc
+
+
+def _topic(ctx, param, template: str | None) -> str | None:
+    """A robot topic template whose only field is the agent id (``{agent}``, or ``{id}`` as
+    ``formic run`` writes it) and that makes a ROS topic name: checked before any node starts."""
+    if template is None or template == param.default:
+        return template
+    try:
+        name = template.replace("{id}", "{agent}").format(agent=0)
+    except (KeyError, IndexError, ValueError):
+        raise click.BadParameter(f"{template!r}: the only field is the agent id, {{agent}} (or {{id}})") from None
+    from rclpy.validate_topic_name import validate_topic_name
+
+    try:
+        validate_topic_name(name)
+    except Exception as exc:  # rclpy's InvalidTopicNameException: its first line says why
+        raise click.BadParameter(f"{template!r}: " + str(exc).splitlines()[0].removeprefix("Invalid topic name: ")
+                                 .rstrip(":")) from exc
+    return template
+
+
+def _origin(ctx, param, text: str) -> str:
+    """map, start or a finite X,Y,YAW."""
+    if text not in ("map", "start"):
+        from formic_ros.robots.bridge import parse_origin
+
+        try:
+            parse_origin(text)
+        except ValueError as exc:
+            raise click.BadParameter(str(exc)) from exc
+    return text
 
 
 # the world's (named as WorldNodeOptions' fields)
 world_robot_options = option_group(
     click.option("--robots", callback=_ids,
                  help="Robot agents, e.g. 28-31: each step is committed when they have reached their cells."),
-    click.option("--robot-tolerance", default=TOLERANCE, show_default=True,
+    click.option("--robot-tolerance", type=POSITIVE, default=TOLERANCE, show_default=True,
                  help="Metres from a cell's centre that count as a robot being in the cell."),
-    click.option("--robot-cell-s", default=CELL_S, show_default=True,
+    click.option("--robot-cell-s", type=POSITIVE, default=CELL_S, show_default=True,
                  help="Seconds a robot gets per cell of a move before the move counts as failed."),
 )
 
@@ -37,21 +68,21 @@ world_robot_options = option_group(
 run_robot_options = option_group(
     world_robot_options,
     click.option("--robots-sim", is_flag=True, help="Simulate the robots (formic robots-sim) instead of real ones."),
-    click.option("--cell-size", default=1.0, show_default=True, help="Metres a grid cell (the map frame)."),
-    click.option("--robot-max-speed", default=MAX_SPEED, show_default=True,
+    click.option("--cell-size", type=POSITIVE, default=1.0, show_default=True, help="Metres a grid cell (the map frame)."),
+    click.option("--robot-max-speed", type=POSITIVE, default=MAX_SPEED, show_default=True,
                  help="Robots' top speed, m/s (formic robot's and robots-sim's --max-speed)."),
-    click.option("--robot-max-turn", default=MAX_TURN, show_default=True,
+    click.option("--robot-max-turn", type=POSITIVE, default=MAX_TURN, show_default=True,
                  help="Robots' top turn rate, rad/s (formic robot's and robots-sim's --max-turn)."),
-    click.option("--robot-stall-s", default=STALL_S, show_default=True,
+    click.option("--robot-stall-s", type=POSITIVE, default=STALL_S, show_default=True,
                  help="No progress for this long: the bridge reports the move failed (formic robot's --stall-s)."),
-    click.option("--robot-cmd-vel", default="/robot_{id}/cmd_vel", show_default=True,
+    click.option("--robot-cmd-vel", default="/robot_{id}/cmd_vel", show_default=True, callback=_topic,
                  help="Each robot's geometry_msgs/Twist topic ({id}: the agent id; formic robot's --cmd-vel)."),
-    click.option("--robot-odom", default="/robot_{id}/odom", show_default=True,
+    click.option("--robot-odom", default="/robot_{id}/odom", show_default=True, callback=_topic,
                  help="Each robot's nav_msgs/Odometry topic ({id}: the agent id; formic robot's --odom)."),
-    click.option("--robot-odom-origin", default="map", show_default=True,
+    click.option("--robot-odom-origin", default="map", show_default=True, callback=_origin,
                  help="Where the odometry frame lies in the map: map, start or X,Y,YAW (formic robot's "
                       "--odom-origin; real robots only)."),
-    click.option("--robot-stall-rate", default=0.0, show_default=True,
+    click.option("--robot-stall-rate", type=NON_NEGATIVE, default=0.0, show_default=True,
                  help="Simulated robots: stalls per second of driving (moves then fail)."),
 )
 
@@ -67,12 +98,7 @@ def robot_run_options(fields: dict):
             raise click.UsageError("--robots-sim needs --robots")
         return None
     from formic_ros.launch.robots import RobotRunOptions
-    from formic_ros.robots.bridge import parse_origin
 
-    try:
-        parse_origin(settings["odom_origin"])
-    except ValueError as exc:
-        raise click.BadParameter(str(exc), param_hint="--robot-odom-origin") from exc
     return RobotRunOptions(agents=robots, simulate=simulate, cell_size=cell_size, seed=fields["seed"], **settings)
 
 
@@ -85,17 +111,20 @@ def robot_run_options(fields: dict):
                    "(your own node agent_K publishes agent_K/action; leave K --external).")
 @model_option
 @greedy_option
-@click.option("--cmd-vel", default=DEFAULT_CMD_VEL, show_default=True,
+@click.option("--cmd-vel", default=DEFAULT_CMD_VEL, show_default=True, callback=_topic,
               help="geometry_msgs/Twist topic the robot follows ({agent}: the agent id).")
-@click.option("--odom", default=DEFAULT_ODOM, show_default=True,
+@click.option("--odom", default=DEFAULT_ODOM, show_default=True, callback=_topic,
               help="nav_msgs/Odometry topic of the robot ({agent}: the agent id).")
-@click.option("--pose", help="geometry_msgs/PoseStamped topic in the map frame instead of odometry ({agent}).")
-@click.option("--odom-origin", default="map", show_default=True,
+@click.option("--pose", callback=_topic,
+              help="geometry_msgs/PoseStamped topic in the map frame instead of odometry ({agent}).")
+@click.option("--odom-origin", default="map", show_default=True, callback=_origin,
               help="Where the pose's frame lies in the map: map (it is the map frame), start (the robot was switched "
                    "on at its start cell's centre facing east), or X,Y,YAW.")
-@click.option("--max-speed", default=MAX_SPEED, show_default=True, help="Top speed the bridge commands, m/s.")
-@click.option("--max-turn", default=MAX_TURN, show_default=True, help="Top turn rate the bridge commands, rad/s.")
-@click.option("--stall-s", default=STALL_S, show_default=True,
+@click.option("--max-speed", type=POSITIVE, default=MAX_SPEED, show_default=True,
+              help="Top speed the bridge commands, m/s.")
+@click.option("--max-turn", type=POSITIVE, default=MAX_TURN, show_default=True,
+              help="Top turn rate the bridge commands, rad/s.")
+@click.option("--stall-s", type=POSITIVE, default=STALL_S, show_default=True,
               help="No progress for this long: the move fails (blocked).")
 @ros_options()
 @click.option("--once", is_flag=True, help="Exit when the episode ends.")
@@ -103,11 +132,10 @@ def robot(agents, policy, model, greedy, cmd_vel, odom, pose, odom_origin, max_s
           domain_id, once) -> None:
     """Robot bridge: a robot agent's decisions to cmd_vel, the robot's odometry back to its cell."""
     from formic_ros.errors import WorldLost
-    from formic_ros.robots.bridge import parse_origin, serve_robots
+    from formic_ros.robots.bridge import serve_robots
     from formic_ros.robots.settings import BridgeSettings, controller_settings
 
     with click_errors(ValueError, FileNotFoundError, WorldLost, interrupted=""):
-        parse_origin(odom_origin)
         controller = controller_settings(max_speed, max_turn)
         settings = BridgeSettings(cmd_vel=cmd_vel, odom=odom, pose=pose, odom_origin=odom_origin, stall_s=stall_s,
                                   controller=controller)
@@ -118,18 +146,21 @@ def robot(agents, policy, model, greedy, cmd_vel, odom, pose, odom_origin, max_s
 @click.command("robots-sim")
 @hosts_network_option
 @click.option("--robots", "agents", required=True, callback=_ids, help="The robot agents to simulate, e.g. 28-31.")
-@click.option("--cell-size", default=1.0, show_default=True, help="Metres a cell: the world's --cell-size.")
-@click.option("--origin-x", default=0.0, show_default=True, help="The world's --origin-x.")
-@click.option("--origin-y", default=0.0, show_default=True, help="The world's --origin-y.")
-@click.option("--max-speed", default=MAX_SPEED, show_default=True, help="m/s")
-@click.option("--max-turn", default=MAX_TURN, show_default=True, help="rad/s")
-@click.option("--accel", default=1.0, show_default=True, help="m/s^2 (turning: 5x in rad/s^2)")
-@click.option("--noise", default=0.05, show_default=True, help="Slip: std. dev. of executed/commanded velocity.")
-@click.option("--stall-rate", default=0.0, show_default=True, help="Stalls per second of driving.")
-@click.option("--stall-s", default=3.0, show_default=True, help="Seconds a stall lasts.")
-@click.option("--seed", default=0, show_default=True, help="Seed of the noise and the stalls.")
-@click.option("--cmd-vel", default=DEFAULT_CMD_VEL, show_default=True, help="Twist topic of each robot ({agent}).")
-@click.option("--odom", default=DEFAULT_ODOM, show_default=True, help="Odometry topic of each robot ({agent}).")
+@click.option("--cell-size", type=POSITIVE, default=1.0, show_default=True, help="Metres a cell: the world's --cell-size.")
+@click.option("--origin-x", type=FiniteFloat(), default=0.0, show_default=True, help="The world's --origin-x.")
+@click.option("--origin-y", type=FiniteFloat(), default=0.0, show_default=True, help="The world's --origin-y.")
+@click.option("--max-speed", type=POSITIVE, default=MAX_SPEED, show_default=True, help="m/s")
+@click.option("--max-turn", type=POSITIVE, default=MAX_TURN, show_default=True, help="rad/s")
+@click.option("--accel", type=POSITIVE, default=1.0, show_default=True, help="m/s^2 (turning: 5x in rad/s^2)")
+@click.option("--noise", type=NON_NEGATIVE, default=0.05, show_default=True,
+              help="Slip: std. dev. of executed/commanded velocity.")
+@click.option("--stall-rate", type=NON_NEGATIVE, default=0.0, show_default=True, help="Stalls per second of driving.")
+@click.option("--stall-s", type=POSITIVE, default=3.0, show_default=True, help="Seconds a stall lasts.")
+@click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the noise and the stalls.")
+@click.option("--cmd-vel", default=DEFAULT_CMD_VEL, show_default=True, callback=_topic,
+              help="Twist topic of each robot ({agent}).")
+@click.option("--odom", default=DEFAULT_ODOM, show_default=True, callback=_topic,
+              help="Odometry topic of each robot ({agent}).")
 @ros_options()
 @click.option("--once", is_flag=True, help="Exit when the world leaves.")
 def robots_sim(agents, cell_size, origin_x, origin_y, max_speed, max_turn, accel, noise, stall_rate, stall_s, seed,
@@ -152,9 +183,11 @@ def robots_sim(agents, cell_size, origin_x, origin_y, max_speed, max_turn, accel
 @click.option("--scenario", "scenario_file", type=click.Path(exists=True, dir_okay=False),
               help="A stored scenario (its configuration wins over world options).")
 @click.option("--robots", callback=_ids, help="Only these agents, e.g. 28-31.")
-@click.option("--cell-size", default=1.0, show_default=True, help="Metres a cell: the run's --cell-size.")
-@click.option("--origin-x", default=0.0, show_default=True, help="Map x of the grid's south-west corner (m).")
-@click.option("--origin-y", default=0.0, show_default=True, help="Map y of the grid's south-west corner (m).")
+@click.option("--cell-size", type=POSITIVE, default=1.0, show_default=True, help="Metres a cell: the run's --cell-size.")
+@click.option("--origin-x", type=FiniteFloat(), default=0.0, show_default=True,
+              help="Map x of the grid's south-west corner (m).")
+@click.option("--origin-y", type=FiniteFloat(), default=0.0, show_default=True,
+              help="Map y of the grid's south-west corner (m).")
 @json_option()
 def scenarios_starts(scenario_file, robots, cell_size, origin_x, origin_y, as_json, **world_kw) -> None:
     """Each agent's start cell and its centre in the map frame: where to put a robot before a run

@@ -83,7 +83,7 @@ def _parse_external(text: str | None) -> tuple[int, ...]:
     try:
         return tuple(parse_ids(text)) if text else ()
     except ValueError as exc:
-        raise click.BadParameter(str(exc), param_hint="--external") from exc
+        raise click.BadParameter(str(exc), param_hint="'--external'") from exc
 
 
 @click.command()
@@ -150,7 +150,7 @@ def _timeline_for_children(folder: str | None) -> Iterator[None]:
         return
     if any(Path(folder).glob("world-*.csv")) or any(Path(folder).glob("host-*.csv")):
         raise click.BadParameter(f"{folder} already holds a run's timeline: give each run a fresh folder",
-                                 param_hint="--timeline")
+                                 param_hint="'--timeline'")
     previous = os.environ.get(ENV)
     os.environ[ENV] = str(Path(folder).resolve())
     try:

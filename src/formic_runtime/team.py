@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from formic_agent.policy import AgentBatch, CentralPolicy, Policy
+from formic_world.limits import MAX_AGENTS
 
 from .registry import check_name, make_policy, policy_class
 
@@ -30,8 +31,9 @@ def parse_ids(text: str, n_agents: int | None = None) -> list[int]:
             raise ValueError(f"bad agent range {chunk!r}") from exc
         if not 0 <= a <= b:
             raise ValueError(f"bad agent range {chunk!r}")
-        if n_agents is not None and b >= n_agents:
-            raise ValueError(f"agent range {chunk!r} is outside 0-{n_agents - 1}")
+        limit = MAX_AGENTS if n_agents is None else n_agents  # checked before the range is built
+        if b >= limit:
+            raise ValueError(f"agent range {chunk!r} is outside 0-{limit - 1}")
         ids.update(range(a, b + 1))
     if not ids:
         raise ValueError(f"no agent ids in {text!r}")

@@ -56,8 +56,10 @@ def parse_origin(text: str) -> Pose | None:
         return None
     try:
         x, y, yaw = (float(v) for v in text.split(","))
+        if not all(map(math.isfinite, (x, y, yaw))):
+            raise ValueError
     except ValueError:
-        raise ValueError(f"odometry origin {text!r}: use map, start or X,Y,YAW (metres, radians)") from None
+        raise ValueError(f"odometry origin {text!r}: use map, start or X,Y,YAW (finite metres, radians)") from None
     return x, y, yaw
 
 
