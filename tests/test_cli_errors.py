@@ -228,9 +228,24 @@ def test_resuming_training_with_other_settings_is_one_line(tmp_path):
     ("optimizer=sgd", "optimizer must be one of 'nadam', 'adam', not 'sgd'"),
     ("lrr=0.1", "'lrr' is not a TrainConfig field (did you mean lr?): the settings are listed in docs/training.md"),
     ("lr", "--set 'lr': expected FIELD=VALUE with a TrainConfig field"),
+    ("teams=16,0", "teams must be team sizes of 1 to 65536, not 16,0"),
+    ("world_sizes=5-16", "world_sizes must be MIN-MAX side ranges within 12-2048, not 5-16"),
+    ("view_size=4", "view_size must be odd, 3 to 63, not 4"),
+    ("seed=-1", "seed must be >= 0, not -1"),
+    ("rollout_steps=0", "rollout_steps must be >= 1, not 0"),
+    ("gamma=nan", "gamma must be a finite number, not nan"),
+    ("gae_lambda=1.5", "gae_lambda must be in [0, 1], not 1.5"),
+    ("lr=0", "lr must be > 0, not 0.0"),
 ])
 def test_every_set_error_names_its_key(tmp_path, setting, expected):
+    """Refused before any world is built or update made (a nan gamma would train on as a nan loss)."""
     assert_one_line_error(formic("train", "--run-dir", str(tmp_path), "--set", setting), expected)
+
+
+@pytest.mark.parametrize("command", [["train-ros", "--episodes", "1", "--run-dir", "unused"],
+                                     ["trainer", "--run-dir", "unused"], ["actor", "--actor", "0", "--episodes", "1"]])
+def test_the_distributed_commands_refuse_a_bad_setting_the_same_way(command):
+    assert_one_line_error(formic(*command, "--set", "teams=0"), "teams must be team sizes of 1 to 65536, not 0")
 
 
 def test_exporting_from_a_run_directory_without_a_checkpoint_is_one_line(tmp_path):

@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import json
+import math
 import typing
 from dataclasses import dataclass
 from pathlib import Path
@@ -16,6 +17,8 @@ from typing import Literal
 
 from formic_agent.inputs import NETWORK_PRESETS
 from formic_world import REWARD_PRESETS, RewardConfig
+from formic_world.config import MIN_SIDE
+from formic_world.limits import MAX_AGENTS, MAX_EPISODE_STEPS, MAX_SIDE, MAX_VIEW_SIZE
 
 
 @dataclass
@@ -122,10 +125,45 @@ class TrainConfig:
                              f"{self.guard_lr_factor} and {self.anneal_memory}")
         if self.guard_window < 1 or self.guard_max < 0 or self.guard_after < 0:
             raise ValueError("guard_max and guard_after must be >= 0 and guard_window >= 1")
+        self._check_ranges()
         reward_config(self)  # a bad reward_overrides fails here, not at the first episode
         if len(self.world_sizes) < len(self.teams):
             raise ValueError(f"{len(self.teams)} teams but {len(self.world_sizes)} world_sizes: give one side "
                              "range per team (--set world_sizes=40-96,64-128)")
+
+    def _check_ranges(self) -> None:
+        """The numbers' ranges, so that a bad one fails here, naming its setting, and not deep in a
+        world or as a nan loss many updates later."""
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if isinstance(value, float) and not math.isfinite(value):
+                raise ValueError(f"{f.name} must be a finite number, not {value}")
+        for name, low, high in (("seed", 0, None), ("episode_steps", 1, MAX_EPISODE_STEPS), ("rollout_steps", 1, None),
+                                ("epochs", 1, None), ("minibatches", 1, None), ("threads", 1, None),
+                                ("checkpoint_every", 1, None), ("total_episodes", 0, None), ("lr_warmup", 0, None),
+                                ("curriculum_start", 0, None), ("curriculum_end", 0, None),
+                                ("filter_anneal_start", 0, None), ("filter_anneal_end", 0, None)):
+            value = getattr(self, name)
+            if value < low or (high is not None and value > high):
+                raise ValueError(f"{name} must be {f'in [{low}, {high}]' if high is not None else f'>= {low}'}, "
+                                 f"not {value}")
+        if not self.teams or not all(1 <= n <= MAX_AGENTS for n in self.teams):
+            raise ValueError(f"teams must be team sizes of 1 to {MAX_AGENTS}, not {','.join(map(str, self.teams))}")
+        if not all(MIN_SIDE <= lo <= hi <= MAX_SIDE for lo, hi in self.world_sizes):
+            raise ValueError(f"world_sizes must be MIN-MAX side ranges within {MIN_SIDE}-{MAX_SIDE}, not "
+                             + ",".join(f"{lo}-{hi}" for lo, hi in self.world_sizes))
+        low, high = self.obstacle_range
+        if not 0.0 <= low <= high < 0.5:
+            raise ValueError(f"obstacle_range must be densities 0 <= MIN <= MAX < 0.5, not {low}, {high}")
+        if not 3 <= self.view_size <= MAX_VIEW_SIZE or self.view_size % 2 == 0:
+            raise ValueError(f"view_size must be odd, 3 to {MAX_VIEW_SIZE}, not {self.view_size}")
+        for name, low, high in (("gamma", 0.0, 1.0), ("gae_lambda", 0.0, 1.0), ("filter_final", 0.0, 1.0),
+                                ("team_reward", 0.0, 1.0)):
+            if not low <= getattr(self, name) <= high:
+                raise ValueError(f"{name} must be in [{low:g}, {high:g}], not {getattr(self, name)}")
+        for name in ("lr", "max_grad_norm", "reward_scale"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be > 0, not {getattr(self, name)}")
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
