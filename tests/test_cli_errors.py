@@ -354,6 +354,10 @@ def test_files_that_are_not_what_a_command_reads_are_one_line(tmp_path):
     assert_one_line_error(formic("replay", str(junk)), f"{junk}: not an MCAP recording (its first bytes are not MCAP's)")
     assert_one_line_error(formic("render", str(junk), "--out", str(tmp_path / "run.gif")),
                           f"{junk}: not an MCAP recording (its first bytes are not MCAP's)")
+    model = tmp_path / "model.pt"
+    model.write_bytes(bytes(range(64)))
+    assert_one_line_error(formic("record", "--out", str(tmp_path / "rec"), "--model", str(model)),
+                          f"{model}: not a ForMIC checkpoint (torch.save writes a zip archive; this is something else)")
     config = tmp_path / "config.json"
     config.write_text("{")
     assert_one_line_error(formic("trainer", "--train-config", str(config)), f"{config}: not a training configuration: "

@@ -72,11 +72,14 @@ def _topic_names(ctx, param, values: tuple[str, ...]) -> tuple[str, ...]:
 @json_option(help="Print one JSON object at the end.")
 def record_command(out, topics, namespace, domain_id, model, duration, chunk_kb, as_json) -> None:
     """Record ForMIC topics into a rosbag2 recording (MCAP) until interrupted."""
-    from formic_agent.checkpoint import checkpoint_id
+    from formic_agent.checkpoint import CheckpointError, checkpoint_id, read_checkpoint
     from formic_ros.recording.recorder import RecorderOptions, record
 
     if Path(out).exists():
         raise click.ClickException(f"{out} exists; a recording is never written over")
+    if model:
+        with click_errors(CheckpointError):  # the id stored names a model, not any file
+            read_checkpoint(model)
     options = RecorderOptions(namespace=namespace, topics=_split(topics),
                               checkpoint_id=checkpoint_id(model) if model else "", chunk_bytes=chunk_kb * 1024)
     with click_errors(ValueError):
