@@ -121,7 +121,8 @@ def run(scenario_file, external, live_view, view_port, view_wait, as_json, timel
     if live_view:  # served by the world process (formic_view), announced here where the user looks
         from formic_view import DEFAULT_HOST, address, announcement
 
-        click.echo(announcement(address(DEFAULT_HOST, view_port)), err=True)
+        click.echo(announcement(address(DEFAULT_HOST, view_port)) if view_port else
+                   "live view: on a free port the world process picks (its log's 'live view:' line names it)", err=True)
     with click_errors(RuntimeError, ValueError, FileNotFoundError,
                       interrupted="interrupted: every process stopped"), _timeline_for_children(timeline):
         summary = launch(options)
