@@ -351,7 +351,8 @@ def test_an_output_folder_under_a_file_is_refused_before_the_work(tmp_path, comm
 def test_files_that_are_not_what_a_command_reads_are_one_line(tmp_path):
     junk = tmp_path / "junk.mcap"
     junk.write_bytes(bytes(range(64)))
-    assert_one_line_error(formic("replay", str(junk)), f"{junk}: not an MCAP recording (its first bytes are not MCAP's)")
+    assert_one_line_error(formic("replay", str(junk)),
+                          f"{junk}: not an MCAP recording (its first bytes are not MCAP's)")
     assert_one_line_error(formic("render", str(junk), "--out", str(tmp_path / "run.gif")),
                           f"{junk}: not an MCAP recording (its first bytes are not MCAP's)")
     model = tmp_path / "model.pt"
@@ -362,8 +363,9 @@ def test_files_that_are_not_what_a_command_reads_are_one_line(tmp_path):
     config.write_text("{")
     assert_one_line_error(formic("trainer", "--train-config", str(config)), f"{config}: not a training configuration: "
                           "Expecting property name enclosed in double quotes: line 1 column 2 (char 1)")
-    assert_one_line_error(formic("eval", "--report", "--out", str(tmp_path / "none")),
-                          f"{tmp_path / 'none'}: no episodes to report (formic eval --out {tmp_path / 'none'} plays them)")
+    none = tmp_path / "none"
+    assert_one_line_error(formic("eval", "--report", "--out", str(none)),
+                          f"{none}: no episodes to report (formic eval --out {none} plays them)")
 
 
 def test_a_frame_too_large_to_draw_is_refused_before_it_is_allocated(tmp_path):
@@ -390,7 +392,8 @@ def test_stored_scenario_sets_have_the_episodes_eval_runs(tmp_path):
     assert path.name == f"s16_n4_o0_infinite_w0_t{PAPER_STEPS}_seed0.json" and PAPER_STEPS == 1024
     assert Scenario.load(path).config.episode_steps == PAPER_STEPS
     help_text = " ".join(formic("scenarios", "generate", "--help").output.split())
-    assert "the paper's test episodes, as `formic eval` runs them" in help_text and "[default: 1024; 1<=x<=1000000]" in help_text
+    assert "the paper's test episodes, as `formic eval` runs them" in help_text
+    assert "[default: 1024; 1<=x<=1000000]" in help_text
 
 
 INTERRUPTED_IN_A_TIMER = """
@@ -470,7 +473,8 @@ def test_a_timeline_goes_into_a_fresh_folder_and_its_report_names_what_is_missin
     (tmp_path / "world-1.csv").write_text("event,step,ns\n")
     usage = formic("run", *TINY_WORLD, "--timeline", str(tmp_path))
     assert usage.exit_code == 2 and usage.stderr.splitlines()[-1] == (
-        f"Error: Invalid value for '--timeline': {tmp_path} already holds a run's timeline: give each run a fresh folder")
+        f"Error: Invalid value for '--timeline': {tmp_path} already holds a run's timeline: "
+        "give each run a fresh folder")
     planner = formic("run", *TINY_WORLD, "--policy", "planner", "--timeline", str(tmp_path / "fresh"))
     assert planner.exit_code == 2 and planner.stderr.splitlines()[-1] == (
         "Error: --timeline times agent hosts; the centralized planner runs without one")

@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import click
 
-from .options import POSITIVE, OutputFolder, hosts_network_option, json_option, preset_option, ros_options, train_config_option, training_config
+from .options import (POSITIVE, OutputFolder, hosts_network_option, json_option, preset_option, ros_options,
+                      train_config_option, training_config)
 from .summary import click_errors, emit
 
 

@@ -14,9 +14,9 @@ from formic_world.config import TEST_EPISODE_STEPS
 from formic_world.errors import InputError
 from formic_world.limits import MAX_EPISODE_STEPS
 
-from .options import (EPISODE_STEPS, SEED, SIDE, TEAM, OutputFolder, comma_list, fresh_option, json_option, live_view_port,
-                      model_option, open_live_view, preset_option, scenario_from, team_options, view_options,
-                      world_config_from, world_option_group, world_options)
+from .options import (EPISODE_STEPS, SEED, SIDE, TEAM, OutputFolder, comma_list, fresh_option, json_option,
+                      live_view_port, model_option, open_live_view, preset_option, scenario_from, team_options,
+                      view_options, world_config_from, world_option_group, world_options)
 from .summary import click_errors, emit, emit_json, print_episode_summary
 
 

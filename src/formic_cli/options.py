@@ -3,6 +3,8 @@ view, ROS (namespace, domain, network) and ``--json``."""
 
 from __future__ import annotations
 
+import math
+
 import click
 
 from formic_topics import DEFAULT_NAMESPACE
@@ -25,7 +27,6 @@ EPISODE_STEPS = click.IntRange(1, MAX_EPISODE_STEPS)
 OBSTACLES = click.FloatRange(0, 0.5, max_open=True)
 SEED = click.IntRange(min=0)  # numpy's generators take no negative seed
 PORT = click.IntRange(0, 65535)
-
 COUNT = click.IntRange(min=1)
 DOMAIN_ID = click.IntRange(0, 232)  # Fast DDS derives its ports from the domain id
 
@@ -53,8 +54,6 @@ class FiniteFloat(click.FloatRange):
     """A float range that also refuses nan and infinities (click's ranges let nan through)."""
 
     def convert(self, value, param, ctx):
-        import math
-
         number = super().convert(value, param, ctx)
         if not math.isfinite(number):
             self.fail(f"{number} is not a finite number", param, ctx)
@@ -106,6 +105,12 @@ def domain_option(help: str = RUN_DOMAIN_HELP):
     return click.option("--domain-id", type=DOMAIN_ID, help=help)
 
 
+def rclpy_refusal(exc: Exception) -> str:
+    """Why one of rclpy's name validators refused a name: the first line of its exception (the
+    lines after it point at the character), without the exception's own prefix."""
+    return str(exc).splitlines()[0].split(": ", 1)[-1].rstrip(":")
+
+
 def ros_namespace(ctx, param, value: str) -> str:
     """A namespace ROS accepts (relative ones are taken from the root, as rclpy does), checked
     here rather than in each node process it is handed to."""
@@ -114,8 +119,8 @@ def ros_namespace(ctx, param, value: str) -> str:
 
         try:
             validate_namespace(value if value.startswith("/") else f"/{value}")
-        except Exception as exc:  # rclpy's InvalidNamespaceException: its first line says why
-            raise click.BadParameter(str(exc).splitlines()[0].removeprefix("Invalid namespace: ").rstrip(":")) from exc
+        except Exception as exc:  # rclpy's InvalidNamespaceException
+            raise click.BadParameter(rclpy_refusal(exc)) from exc
     return value
 
 
@@ -126,8 +131,8 @@ def ros_node_name(ctx, param, value: str | None) -> str | None:
 
         try:
             validate_node_name(value)
-        except Exception as exc:  # rclpy's InvalidNodeNameException: its first line says why
-            raise click.BadParameter(str(exc).splitlines()[0].removeprefix("Invalid node name: ").rstrip(":")) from exc
+        except Exception as exc:  # rclpy's InvalidNodeNameException
+            raise click.BadParameter(rclpy_refusal(exc)) from exc
     return value
 
 

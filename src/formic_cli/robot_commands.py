@@ -7,7 +7,7 @@ from __future__ import annotations
 import click
 
 from .options import (NON_NEGATIVE, POSITIVE, SEED, FiniteFloat, greedy_option, hosts_network_option, json_option,
-                      model_option, option_group, ros_options, scenario_from, world_options)
+                      model_option, option_group, rclpy_refusal, ros_options, scenario_from, world_options)
 from .summary import click_errors, emit_json
 
 from formic_ros.robots.settings import (CMD_VEL as DEFAULT_CMD_VEL, MAX_SPEED, MAX_TURN, ODOM as DEFAULT_ODOM,
@@ -36,9 +36,8 @@ def _topic(ctx, param, template: str | None) -> str | None:
 
     try:
         validate_topic_name(name)
-    except Exception as exc:  # rclpy's InvalidTopicNameException: its first line says why
-        raise click.BadParameter(f"{template!r}: " + str(exc).splitlines()[0].removeprefix("Invalid topic name: ")
-                                 .rstrip(":")) from exc
+    except Exception as exc:  # rclpy's InvalidTopicNameException
+        raise click.BadParameter(f"{template!r}: {rclpy_refusal(exc)}") from exc
     return template
 
 
@@ -68,7 +67,8 @@ world_robot_options = option_group(
 run_robot_options = option_group(
     world_robot_options,
     click.option("--robots-sim", is_flag=True, help="Simulate the robots (formic robots-sim) instead of real ones."),
-    click.option("--cell-size", type=POSITIVE, default=1.0, show_default=True, help="Metres a grid cell (the map frame)."),
+    click.option("--cell-size", type=POSITIVE, default=1.0, show_default=True,
+                 help="Metres a grid cell (the map frame)."),
     click.option("--robot-max-speed", type=POSITIVE, default=MAX_SPEED, show_default=True,
                  help="Robots' top speed, m/s (formic robot's and robots-sim's --max-speed)."),
     click.option("--robot-max-turn", type=POSITIVE, default=MAX_TURN, show_default=True,
@@ -146,7 +146,8 @@ def robot(agents, policy, model, greedy, cmd_vel, odom, pose, odom_origin, max_s
 @click.command("robots-sim")
 @hosts_network_option
 @click.option("--robots", "agents", required=True, callback=_ids, help="The robot agents to simulate, e.g. 28-31.")
-@click.option("--cell-size", type=POSITIVE, default=1.0, show_default=True, help="Metres a cell: the world's --cell-size.")
+@click.option("--cell-size", type=POSITIVE, default=1.0, show_default=True,
+              help="Metres a cell: the world's --cell-size.")
 @click.option("--origin-x", type=FiniteFloat(), default=0.0, show_default=True, help="The world's --origin-x.")
 @click.option("--origin-y", type=FiniteFloat(), default=0.0, show_default=True, help="The world's --origin-y.")
 @click.option("--max-speed", type=POSITIVE, default=MAX_SPEED, show_default=True, help="m/s")
@@ -183,7 +184,8 @@ def robots_sim(agents, cell_size, origin_x, origin_y, max_speed, max_turn, accel
 @click.option("--scenario", "scenario_file", type=click.Path(exists=True, dir_okay=False),
               help="A stored scenario (its configuration wins over world options).")
 @click.option("--robots", callback=_ids, help="Only these agents, e.g. 28-31.")
-@click.option("--cell-size", type=POSITIVE, default=1.0, show_default=True, help="Metres a cell: the run's --cell-size.")
+@click.option("--cell-size", type=POSITIVE, default=1.0, show_default=True,
+              help="Metres a cell: the run's --cell-size.")
 @click.option("--origin-x", type=FiniteFloat(), default=0.0, show_default=True,
               help="Map x of the grid's south-west corner (m).")
 @click.option("--origin-y", type=FiniteFloat(), default=0.0, show_default=True,

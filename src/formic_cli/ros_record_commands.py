@@ -12,8 +12,8 @@ import click
 from formic_ros.drivers.lag import DEFAULT_MAX_LAG  # no rclpy, no torch
 
 from .options import (COUNT, NON_NEGATIVE, POSITIVE, PROCESS_DOMAIN_HELP, OutputFolder, domain_option, fresh_option,
-                      hosts_network_option, json_option, live_view_port, open_live_view, preset_option, ros_options,
-                      ros_run_dir_option, train_config_option, training_config, view_options)
+                      hosts_network_option, json_option, live_view_port, open_live_view, preset_option, rclpy_refusal,
+                      ros_options, ros_run_dir_option, train_config_option, training_config, view_options)
 from .summary import click_errors, emit, emit_json
 
 _AGENT_PART = re.compile(r"(?<=/)agent_\d+(?=/|$)")
@@ -51,9 +51,8 @@ def _topic_names(ctx, param, values: tuple[str, ...]) -> tuple[str, ...]:
     for name in _split(values):
         try:
             validate_full_topic_name(name)
-        except Exception as exc:  # rclpy's InvalidTopicNameException: its first line says why
-            raise click.BadParameter(f"{name!r}: {str(exc).splitlines()[0].removeprefix('Invalid topic name: ').rstrip(':')}") \
-                from exc
+        except Exception as exc:  # rclpy's InvalidTopicNameException
+            raise click.BadParameter(f"{name!r}: {rclpy_refusal(exc)}") from exc
     return values
 
 
