@@ -16,7 +16,8 @@ intervals, and the verdict ahead/level/behind); then ForMIC / the paper over the
 cells, the collapse rate (on validation food) and the three targets of the eight-seed experiment, met or missed
 (``formic_eval.seeds_report``). Without ``--runs``: every finished seed
 (``models/training/recipe-paper/seedS`` with its ``selection.json``) and its
-``eval/recipe-paper/seedS`` folder, the results page's block (docs/results.md):
+``eval/recipe-paper/seedS`` folder once sealed (an evaluation still being played is left out), the
+results page's block (docs/results.md):
 
     .venv/bin/python scripts/seeds_table.py --write docs/results.md   # replace the block in place
     .venv/bin/python scripts/seeds_table.py --check docs/results.md   # exit 1 if the page is stale
@@ -48,6 +49,12 @@ def markers(recipe: str, planned: int | None) -> tuple[str, str]:
     return f"<!-- seeds:begin (scripts/seeds_table.py {args}) -->", f"<!-- seeds:end {args} -->"
 
 
+def sealed(folder: Path) -> bool:
+    """An evaluation that has ended: its episodes sealed, no plain tail still being written
+    (``scripts/train_seeds.sh`` seals a seed's test episodes once all are played)."""
+    return (folder / "episodes.jsonl.gz").is_file() and not (folder / "episodes.jsonl").exists()
+
+
 def episodes(folder: Path, algorithm: str) -> list[dict]:
     """The folder's plain (no variant) episodes of ``algorithm`` in the paper's test protocol."""
     return test_set_episodes(folder_episodes(folder), algorithm)
@@ -67,11 +74,11 @@ def validation_table(validations: list[SeedValidation]) -> list[str]:
     return lines
 
 
-def tables(runs: list[Path], evals: list[Path], baselines_folder: Path, planned: int | None = None) -> list[str]:
+def tables(runs: list[Path], evals: list[Path | None], baselines_folder: Path, planned: int | None = None) -> list[str]:
     """The validation table and the seed that ships, then the test table and the statistics over
     seeds; first, while fewer than ``planned`` seeds have finished, how far the experiment is."""
     validations = [SeedValidation.load(run) for run in runs]
-    per_seed = {v.name: episodes(folder, "formic") for v, folder in zip(validations, evals)}
+    per_seed = {v.name: episodes(folder, "formic") if folder else [] for v, folder in zip(validations, evals)}
     per_seed = {name: records for name, records in per_seed.items() if records}
     baselines = {algorithm: episodes(baselines_folder, algorithm) for algorithm, _ in RIVALS}
     result = study(per_seed, baselines, {v.name: v.food_mean for v in validations})
@@ -107,7 +114,8 @@ def main() -> int:
             parser.error(f"--recipe {args.recipe}: no {runs_folder.relative_to(ROOT)}")
         args.runs = sorted((run for run in runs_folder.glob("seed*") if (run / "selection.json").is_file()),
                            key=lambda run: int(run.name[4:]) if run.name[4:].isdigit() else run.name)
-        args.evals = [ROOT / "eval" / f"recipe-{args.recipe}" / run.name for run in args.runs]
+        evals = ROOT / "eval" / f"recipe-{args.recipe}"  # a seed's test episodes count once all are played
+        args.evals = [evals / run.name if sealed(evals / run.name) else None for run in args.runs]
     if args.evals and len(args.evals) != len(args.runs):
         parser.error(f"--evals names {len(args.evals)} folders for {len(args.runs)} runs")
     try:

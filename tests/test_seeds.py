@@ -170,6 +170,24 @@ def test_an_experiment_in_progress_says_how_many_of_its_seeds_the_table_rests_on
     assert missing.returncode == 2 and "--recipe nothing: no models/training/recipe-nothing" in missing.stderr
 
 
+def test_a_seed_whose_test_episodes_are_still_being_played_is_not_counted_as_tested(tmp_path):
+    """Without --runs the table reads each seed's folder only once sealed: a folder being
+    played (its plain tail) would put a seed with a few cells into the statistics over seeds."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("seeds_table", ROOT / "scripts" / "seeds_table.py")
+    seeds_table = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(seeds_table)
+    import gzip
+
+    playing, done, resumed = (write_episodes(tmp_path / name, [record("formic", "a", 100)])
+                              for name in ("playing", "done", "resumed"))
+    for folder in (done, resumed):  # sealed as EpisodeLog.seal leaves it; resumed: a tail again beside it
+        (folder / "episodes.jsonl.gz").write_bytes(gzip.compress((folder / "episodes.jsonl").read_bytes()))
+    (done / "episodes.jsonl").unlink()
+    assert [seeds_table.sealed(f) for f in (playing, done, resumed, tmp_path / "none")] == [False, True, False, False]
+
+
 @pytest.mark.parametrize("args", [[], ["--recipe", "paper-v6", "--planned", "8"]])
 def test_results_page_seeds_blocks_are_current(args):
     """The results page's seeds blocks are what scripts/seeds_table.py builds from the committed runs
