@@ -14,7 +14,7 @@ from formic_world.config import TEST_EPISODE_STEPS
 from formic_world.errors import InputError
 from formic_world.limits import MAX_EPISODE_STEPS
 
-from .options import (EPISODE_STEPS, SEED, SIDE, TEAM, OutputFolder, comma_list, fresh_option, json_option,
+from .options import (EPISODE_STEPS, POSITIVE, SEED, SIDE, TEAM, OutputFolder, comma_list, fresh_option, json_option,
                       live_view_port, model_option, open_live_view, preset_option, scenario_from, team_options,
                       view_options, world_config_from, world_option_group, world_options)
 from .summary import click_errors, emit, emit_json, print_episode_summary
@@ -251,8 +251,8 @@ def bench_decide(size, teams, steps, seed, policy, model, threads, as_json) -> N
 @cli.command()
 @preset_option
 @click.option("--run-dir", type=OutputFolder(), default="runs/formic", show_default=True)
-@click.option("--episodes", type=int, help="Environment episodes to add in this call.")
-@click.option("--minutes", type=float, help="Stop after this many minutes (checkpoint kept).")
+@click.option("--episodes", type=click.IntRange(min=0), help="Environment episodes to add in this call.")
+@click.option("--minutes", type=POSITIVE, help="Stop after this many minutes (checkpoint kept).")
 @fresh_option
 @click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE",
               help="Override a training field, e.g. --set network=cpu-nest --set pheromones=false.")

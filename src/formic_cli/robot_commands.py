@@ -4,7 +4,11 @@ before a run), and the robot options of ``formic run`` and ``formic world``. Reg
 
 from __future__ import annotations
 
+import string
+
 import click
+
+from formic_topics import DEFAULT_NAMESPACE
 
 from .options import (NON_NEGATIVE, POSITIVE, SEED, FiniteFloat, greedy_option, hosts_network_option, json_option,
                       model_option, option_group, rclpy_refusal, ros_options, scenario_from, world_options)
@@ -25,20 +29,33 @@ def _ids(ctx, param, text: str | None) -> tuple[int, ...]:
 
 def _topic(ctx, param, template: str | None) -> str | None:
     """A robot topic template whose only field is the agent id (``{agent}``, or ``{id}`` as
-    ``formic run`` writes it) and that makes a ROS topic name: checked before any node starts."""
+    ``formic run`` writes it, handed on as ``{agent}``: the field the nodes fill) and that makes a
+    ROS topic name with known substitutions: checked before any node starts. The field is taken
+    bare (no index, attribute, conversion or format) so that every id makes a name when agent 0 does."""
     if template is None or template == param.default:
         return template
+    refusal = f"{template!r}: the only field is the agent id, {{agent}} (or {{id}})"
     try:
-        name = template.replace("{id}", "{agent}").format(agent=0)
-    except (KeyError, IndexError, ValueError):
-        raise click.BadParameter(f"{template!r}: the only field is the agent id, {{agent}} (or {{id}})") from None
+        fields = [(name, spec, conversion) for _, name, spec, conversion in string.Formatter().parse(template)
+                  if name is not None]
+    except ValueError:  # a lone brace
+        raise click.BadParameter(refusal) from None
+    if any(name not in ("agent", "id") or spec or conversion for name, spec, conversion in fields):
+        raise click.BadParameter(refusal)
+    agent_template = template.replace("{id}", "{agent}")
+    from rclpy.expand_topic_name import expand_topic_name
     from rclpy.validate_topic_name import validate_topic_name
 
+    name = agent_template.format(agent=0)
     try:
         validate_topic_name(name)
     except Exception as exc:  # rclpy's InvalidTopicNameException
         raise click.BadParameter(f"{template!r}: {rclpy_refusal(exc)}") from exc
-    return template
+    try:  # what a node does with it: {node}, {ns} and {namespace} are ROS's substitutions, no other
+        expand_topic_name(name, "robot_bridge_0", DEFAULT_NAMESPACE)
+    except ValueError as exc:  # "...: unknown substitution: {x}, at <rcl's source file>"
+        raise click.BadParameter(f"{template!r}: {rclpy_refusal(exc).split(', at ')[0]}") from exc
+    return agent_template
 
 
 def _origin(ctx, param, text: str) -> str:
