@@ -50,7 +50,7 @@ def test_a_setting_that_is_off_is_none_and_its_old_spelling_reads_as_none():
     ({"weight_average": -0.5}, "weight_average must be in (0, 1), or None or 0 for off, not -0.5"),
     ({"clip": -0.2}, "clip must be > 0, or None or 0 for off, not -0.2"),
     ({"guard_restart": -1}, "guard_restart must be > 0, or None or 0 for off, not -1"),
-    ({"learning_agents": -2}, "learning_agents must be >= 0, or None or -1 for all, not -2")])
+    ({"learning_agents": -2}, "learning_agents must be >= 1, or None or -1 for all, not -2")])
 def test_a_setting_that_can_be_off_is_checked_when_on(settings, message):
     with pytest.raises(ValueError) as error:
         make_config("cpu", **settings)

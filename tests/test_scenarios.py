@@ -251,7 +251,7 @@ def test_corrupted_json_is_rejected(tmp_path):
         (lambda d: d.update(version=3), "version 3 is not supported"),
             (lambda d: d.update(version=1), "version 1 scenario has no timing"),
         (lambda d: d.pop("agents"), "malformed scenario"),
-        (lambda d: d["config"].update(height=5), "malformed scenario.*at least 12x12"),
+        (lambda d: d["config"].update(height=5), "malformed scenario.*at least 15x15"),
         (lambda d: d["config"].update(colour="red"), "malformed scenario.*unknown world configuration"),
         (lambda d: d["obstacles"].append([40, 3]), r"obstacle \(40, 3\) is outside the 32x32 world"),
         (lambda d: d["obstacles"].append([3, -1]), r"obstacle \(3, -1\) is outside"),

@@ -16,9 +16,15 @@ from pathlib import Path
 from typing import Literal
 
 from formic_agent.inputs import NETWORK_PRESETS
+from formic_runtime.registry import POLICY_NAMES
 from formic_world import REWARD_PRESETS, RewardConfig
-from formic_world.config import MIN_SIDE
-from formic_world.limits import MAX_AGENTS, MAX_EPISODE_STEPS, MAX_SIDE, MAX_VIEW_SIZE
+from formic_world.limits import MAX_AGENTS, MAX_EPISODE_STEPS, MAX_SIDE, MAX_VIEW_SIZE, check_at_most
+
+# A training world's side is drawn even within its range (worlds.sample_scenarios, rounding down), and
+# no side below formic_world's MIN_SIDE (15) lays out: a range starts at 16.
+MIN_TRAINING_SIDE = 16
+MAX_SEED = 2**63 - 1  # a signed 64-bit integer (torch.manual_seed overflowed past 2**64 - 1: a traceback)
+MAX_THREADS = 1024  # far above any machine's cores; torch crashes (SIGSEGV) asked for 100,000
 
 
 @dataclass
@@ -116,8 +122,10 @@ class TrainConfig:
         for name in ("clip", "target_kl", "imitation_radius", "guard_restart", "schedule_end"):
             if getattr(self, name) is not None and getattr(self, name) <= 0:
                 raise ValueError(f"{name} must be > 0, or None or 0 for off, not {getattr(self, name)}")
-        if self.learning_agents is not None and self.learning_agents < 0:
-            raise ValueError(f"learning_agents must be >= 0, or None or -1 for all, not {self.learning_agents}")
+        if self.learning_agents is not None and self.learning_agents < 1:  # 0 would train on no agent
+            raise ValueError(f"learning_agents must be >= 1, or None or -1 for all, not {self.learning_agents}")
+        if self.imitate is not None and self.imitate not in POLICY_NAMES:
+            raise ValueError(f"imitate must be one of {', '.join(POLICY_NAMES)}, or none for off, not {self.imitate!r}")
         if not 0.0 <= self.filter_initial <= 1.0:
             raise ValueError(f"filter_initial is a probability in [0, 1], not {self.filter_initial}")
         if not 0.0 < self.guard_lr_factor <= 1.0 or self.anneal_memory < 1:
@@ -147,10 +155,12 @@ class TrainConfig:
             if value < low or (high is not None and value > high):
                 raise ValueError(f"{name} must be {f'in [{low}, {high}]' if high is not None else f'>= {low}'}, "
                                  f"not {value}")
+        check_at_most("seed", self.seed, MAX_SEED)
+        check_at_most("threads", self.threads, MAX_THREADS)
         if not self.teams or not all(1 <= n <= MAX_AGENTS for n in self.teams):
             raise ValueError(f"teams must be team sizes of 1 to {MAX_AGENTS}, not {','.join(map(str, self.teams))}")
-        if not all(MIN_SIDE <= lo <= hi <= MAX_SIDE for lo, hi in self.world_sizes):
-            raise ValueError(f"world_sizes must be MIN-MAX side ranges within {MIN_SIDE}-{MAX_SIDE}, not "
+        if not all(MIN_TRAINING_SIDE <= lo <= hi <= MAX_SIDE for lo, hi in self.world_sizes):
+            raise ValueError(f"world_sizes must be MIN-MAX side ranges within {MIN_TRAINING_SIDE}-{MAX_SIDE}, not "
                              + ",".join(f"{lo}-{hi}" for lo, hi in self.world_sizes))
         low, high = self.obstacle_range
         if not 0.0 <= low <= high < 0.5:
@@ -164,6 +174,9 @@ class TrainConfig:
         for name in ("lr", "max_grad_norm", "reward_scale"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0, not {getattr(self, name)}")
+        for name in ("value_coef", "entropy_coef", "valid_coef", "valid_join_coef", "imitation_coef"):
+            if getattr(self, name) < 0:  # a loss weight: a negative one trains its loss the wrong way
+                raise ValueError(f"{name} must be >= 0, not {getattr(self, name)}")
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -217,6 +230,8 @@ def reward_config(cfg: TrainConfig) -> RewardConfig:
             changes[name.strip()] = float(text)
         except ValueError:
             raise ValueError(f"reward_overrides: {name.strip()} needs a number, not {text!r}") from None
+        if not math.isfinite(changes[name.strip()]):  # a nan or inf reward is a nan loss
+            raise ValueError(f"reward_overrides: {name.strip()} needs a finite number, not {text!r}")
     return dataclasses.replace(REWARD_PRESETS[cfg.rewards], **changes)
 
 
@@ -268,6 +283,8 @@ def parse_overrides(pairs: tuple[str, ...] | list[str]) -> dict:
             close = difflib.get_close_matches(key, fields, n=1)
             raise ValueError(f"{key!r} is not a TrainConfig field{f' (did you mean {close[0]}?)' if close else ''}: "
                              "the settings are listed in docs/training.md")
+        if key == "preset":  # a label of the defaults: --set would rename them, not apply them
+            raise ValueError("preset is chosen with --preset, not --set")
         if key in OFF_SPELLINGS and text.lower() == "none":
             out[key] = None
             continue

@@ -22,7 +22,7 @@ CAPACITY_MODES = ("infinite", "finite")
 TIMINGS = ("reference", "nominal")
 AGENT_ORDERS = ("random", "id")
 TRAINING_FILTERS = ("paper", "reference")
-MIN_SIDE = 12  # cells, a world's height and width (the upper limit: limits.MAX_SIDE)
+MIN_SIDE = 15  # cells, a world's height and width: no smaller one lays out (the upper limit: limits.MAX_SIDE)
 TEST_EPISODE_STEPS = 1024  # the paper's test episodes (SPEC §1); WorldConfig's default, 512, is training's
 
 
