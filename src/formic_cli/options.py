@@ -59,6 +59,9 @@ class FiniteFloat(click.FloatRange):
             self.fail(f"{number} is not a finite number", param, ctx)
         return number
 
+    def _describe_range(self) -> str:  # click's, for --help: unbounded, it would read "x<=None"
+        return "finite" if self.min is None and self.max is None else super()._describe_range()
+
 
 POSITIVE = FiniteFloat(min=0, min_open=True)  # seconds, rates, lengths
 NON_NEGATIVE = FiniteFloat(min=0)
@@ -95,6 +98,15 @@ def option_group(*options):
         return func
 
     return decorate
+
+
+# where the grid lies in the map frame (the world's entity poses, the robots' start cells)
+map_origin_options = option_group(
+    click.option("--origin-x", type=FiniteFloat(), default=0.0, show_default=True,
+                 help="Map x of the grid's south-west corner (m)."),
+    click.option("--origin-y", type=FiniteFloat(), default=0.0, show_default=True,
+                 help="Map y of the grid's south-west corner (m)."),
+)
 
 
 def json_option(help: str | None = "Print one JSON object."):

@@ -11,7 +11,8 @@ import click
 from formic_topics import DEFAULT_NAMESPACE
 
 from .options import (NON_NEGATIVE, POSITIVE, SEED, FiniteFloat, greedy_option, hosts_network_option, json_option,
-                      model_option, option_group, rclpy_refusal, ros_options, scenario_from, world_options)
+                      map_origin_options, model_option, option_group, rclpy_refusal, ros_options, scenario_from,
+                      world_options)
 from .summary import click_errors, emit_json
 
 from formic_ros.robots.settings import (CMD_VEL as DEFAULT_CMD_VEL, MAX_SPEED, MAX_TURN, ODOM as DEFAULT_ODOM,
@@ -203,10 +204,7 @@ def robots_sim(agents, cell_size, origin_x, origin_y, max_speed, max_turn, accel
 @click.option("--robots", callback=_ids, help="Only these agents, e.g. 28-31.")
 @click.option("--cell-size", type=POSITIVE, default=1.0, show_default=True,
               help="Metres a cell: the run's --cell-size.")
-@click.option("--origin-x", type=FiniteFloat(), default=0.0, show_default=True,
-              help="Map x of the grid's south-west corner (m).")
-@click.option("--origin-y", type=FiniteFloat(), default=0.0, show_default=True,
-              help="Map y of the grid's south-west corner (m).")
+@map_origin_options
 @json_option()
 def scenarios_starts(scenario_file, robots, cell_size, origin_x, origin_y, as_json, **world_kw) -> None:
     """Each agent's start cell and its centre in the map frame: where to put a robot before a run

@@ -15,9 +15,9 @@ import click
 
 from formic_world.limits import MAX_EPISODE_STEPS
 
-from .options import (COUNT, POSITIVE, SIDE, TEAM, WORLD_OPTION_NAMES, FiniteFloat, OutputFolder, comma_list,
+from .options import (COUNT, POSITIVE, SIDE, TEAM, WORLD_OPTION_NAMES, OutputFolder, comma_list,
                       domain_option, fresh_option, greedy_option, hosts_network_option, json_option, live_view_port,
-                      model_option, option_group, preset_option, ros_node_name, ros_options, ros_run_dir_option,
+                      map_origin_options, model_option, option_group, preset_option, ros_node_name, ros_options, ros_run_dir_option,
                       scenario_from, stored_train_config, team_options, train_config_option, training_config,
                       view_options, world_options)
 from .robot_commands import (robot, robot_run_options, robots_sim, run_robot_options, scenarios_starts,
@@ -206,10 +206,7 @@ def timeline_report(folder, as_json) -> None:
                    "and stay up until it sets STATE_QUITTING.")
 @click.option("--cell-size", type=POSITIVE, default=1.0, show_default=True,
               help="Metres per cell in the map frame of the entity poses (simulation_interfaces).")
-@click.option("--origin-x", type=FiniteFloat(), default=0.0, show_default=True,
-              help="Map x of the grid's south-west corner (m).")
-@click.option("--origin-y", type=FiniteFloat(), default=0.0, show_default=True,
-              help="Map y of the grid's south-west corner (m).")
+@map_origin_options
 @click.option("--allow-empty", is_flag=True,
               help="Step through the episode even when agents do not answer step 0 (default: exit with an error "
                    "naming them).")
