@@ -34,7 +34,7 @@ sys.path.insert(0, str(ROOT / "src"))
 
 from formic_eval.markdown_block import add_block_options, publish  # noqa: E402
 from formic_eval.paper import RIVALS, test_set_episodes  # noqa: E402
-from formic_eval.runner import folder_episodes  # noqa: E402
+from formic_eval.runner import LOG_NAME, EpisodeLog, folder_episodes  # noqa: E402
 from formic_eval.seeds import SeedValidation, shipped_seed, spread, study  # noqa: E402
 from formic_eval.seeds_report import seeds_report  # noqa: E402
 
@@ -52,7 +52,7 @@ def markers(recipe: str, planned: int | None) -> tuple[str, str]:
 def sealed(folder: Path) -> bool:
     """An evaluation that has ended: its episodes sealed, no plain tail still being written
     (``scripts/train_seeds.sh`` seals a seed's test episodes once all are played)."""
-    return (folder / "episodes.jsonl.gz").is_file() and not (folder / "episodes.jsonl").exists()
+    return EpisodeLog(folder / LOG_NAME).sealed
 
 
 def episodes(folder: Path, algorithm: str) -> list[dict]:

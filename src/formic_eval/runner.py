@@ -52,6 +52,11 @@ class EpisodeLog:
         self.repaired = False
         self._handle = None
 
+    @property
+    def sealed(self) -> bool:
+        """The evaluation has ended: its episodes sealed, no plain tail still being written."""
+        return self.sealed_path.is_file() and not self.path.exists()
+
     def load(self) -> dict[str, dict]:
         """Finished episodes, sealed ones first in their sealed order, then the tail's in its
         order; cuts off a torn last line of the tail and skips unreadable lines."""
